@@ -1,0 +1,83 @@
+#!/usr/bin/env bash
+# Idempotent set-up of drs-torchrl on a fresh Debian 12 machine (or any machine with Python 3.10+).
+#   1. a usable Vulkan driver (SAPIEN needs one even for state observations): if no GPU Vulkan
+#      driver is present, install Mesa's software driver (lavapipe) from bookworm-backports;
+#      Debian 12's own Mesa 22.3 is too old (no descriptorBindingPartiallyBound).
+#   2. .venv at the repository root with torch 2.13.0 (CPU wheel) first, then the project.
+# Usage: bin/setup.sh            (as root for step 1 on a machine without Vulkan)
+# Env:   DRS_SKIP_VULKAN=1 skips step 1; PYTHON=python3.11 picks the interpreter.
+set -euo pipefail
+root=$(cd "$(dirname "$0")/.." && pwd)
+cd "$root"
+PYTHON=${PYTHON:-python3}
+TORCH_VERSION=${TORCH_VERSION:-2.13.0}
+
+log() { printf '[setup] %s\n' "$*"; }
+
+have_gpu_vulkan() {
+  # an NVIDIA (or other vendor) ICD registered with the loader
+  local d
+  for d in /usr/share/vulkan/icd.d /etc/vulkan/icd.d; do
+    [ -d "$d" ] || continue
+    if ls "$d" 2>/dev/null | grep -Eiq 'nvidia|radeon|intel|amd'; then return 0; fi
+  done
+  return 1
+}
+
+have_recent_lavapipe() {
+  local v
+  v=$(dpkg-query -W -f='${Version}' mesa-vulkan-drivers 2>/dev/null || true)
+  [ -n "$v" ] || return 1
+  dpkg --compare-versions "$v" ge 24 && [ -e /usr/share/vulkan/icd.d/lvp_icd.x86_64.json ] \
+    && dpkg-query -W libvulkan1 >/dev/null 2>&1
+}
+
+install_lavapipe() {
+  if [ "$(id -u)" != 0 ]; then
+    log "no usable Vulkan driver and not root. Run as root, or install it yourself:"
+    log "  echo 'deb http://deb.debian.org/debian bookworm-backports main' > /etc/apt/sources.list.d/backports.list"
+    log "  apt-get update && apt-get install -y -t bookworm-backports mesa-vulkan-drivers libvulkan1"
+    exit 1
+  fi
+  if ! command -v apt-get >/dev/null; then
+    log "no apt-get: install a Vulkan driver (Mesa >= 24 lavapipe, or your GPU's) by hand"; exit 1
+  fi
+  . /etc/os-release
+  if [ "${VERSION_CODENAME:-}" = bookworm ]; then
+    if ! grep -rqs 'bookworm-backports' /etc/apt/sources.list /etc/apt/sources.list.d/; then
+      log "adding bookworm-backports"
+      echo 'deb http://deb.debian.org/debian bookworm-backports main' > /etc/apt/sources.list.d/drs-backports.list
+    fi
+    apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq -t bookworm-backports mesa-vulkan-drivers libvulkan1 >/dev/null
+  else
+    apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq mesa-vulkan-drivers libvulkan1 >/dev/null
+  fi
+  log "installed $(dpkg-query -W -f='mesa-vulkan-drivers ${Version}' mesa-vulkan-drivers)"
+}
+
+if [ "${DRS_SKIP_VULKAN:-0}" = 1 ]; then
+  log "skipping the Vulkan check (DRS_SKIP_VULKAN=1)"
+elif have_gpu_vulkan; then
+  log "GPU Vulkan driver found; system packages left alone"
+elif have_recent_lavapipe; then
+  log "software Vulkan (lavapipe) already installed"
+else
+  install_lavapipe
+fi
+
+if [ ! -x .venv/bin/python ]; then
+  log "creating .venv with $($PYTHON --version)"
+  "$PYTHON" -m venv .venv
+fi
+py=.venv/bin/python
+if ! $py -c "import torch,sys; sys.exit(0 if torch.__version__.startswith('$TORCH_VERSION') else 1)" 2>/dev/null; then
+  log "installing torch==$TORCH_VERSION first (a CPU wheel where one is on disk)"
+  $py -m pip install -q "torch==$TORCH_VERSION"
+fi
+log "installing drs-torchrl with its test extra"
+$py -m pip install -q -e ".[test]"
+log "checking the simulator"
+$py -m drs_torchrl.envs.doctor
+log "done. Activate with: source .venv/bin/activate"

@@ -1,0 +1,312 @@
+"""Stage buffers (Sec. 4.2-4.3, Algorithm 1 lines 2-3 and 7-15) as a TorchRL replay buffer.
+
+Every finished trajectory is filed by its stage index ``max_t stage(s_t)`` (Eq. 3). All stage
+buffers share one storage; :class:`StageSampler` keeps, per stage, the storage slots that belong to
+it and draws, for discriminator ``k``, positives from stages ``> k`` and negatives from stages
+``<= k``, each uniformly over the union (hence across stages in proportion to their sizes).
+
+Filing rules (the authors' public implementation): a failed trajectory (top stage ``j < N``) is cut
+right after the last step at which it was at stage ``j``; a successful one and every demonstration
+go whole into the top buffer ``N``.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import LazyMemmapStorage, LazyTensorStorage, ReplayBuffer, RoundRobinWriter
+from torchrl.data.replay_buffers import Sampler
+
+TRAJ_STAGE_KEY = "traj_stage"
+
+
+def trajectory_stage(stages: torch.Tensor) -> int:
+    """Eq. 3: the stage index of a trajectory is the highest stage index of its states."""
+    return int(stages.max())
+
+
+def truncate_failed(stages: torch.Tensor, num_stages: int) -> int:
+    """Length to keep of a trajectory with per-step stages ``stages`` (shape ``(T,)``).
+
+    Successful trajectories (top stage ``N``) are kept whole; failed ones are cut right after the
+    last step at which they were at their highest stage.
+    """
+    stages = stages.reshape(-1)
+    top = int(stages.max())
+    if top >= num_stages:
+        return int(stages.numel())
+    last = int((stages == top).nonzero().max())
+    return last + 1
+
+
+class StageSampler(Sampler):
+    """Draws discriminator training batches from stage buffers sharing one storage.
+
+    ``sample(storage, batch_size)`` returns ``N * 2 * batch_size`` storage indices ordered as
+    ``(k, label, b)``: for each discriminator ``k = 0..N-1``, ``batch_size`` negatives (trajectory
+    stage ``<= k``) then ``batch_size`` positives (stage ``> k``), each uniform over the union of its
+    stage buffers. A side with no data yields index ``-1``-free placeholders and ``info["valid"][k]``
+    is ``False``; the loss then skips that discriminator.
+
+    Stage labels are read from the storage entry ``stage_key`` of newly written slots the next time
+    it samples, so the work per call is proportional to what was added, not to the buffer size.
+    Overwritten slots (a full storage) move out of their old stage.
+    """
+
+    def __init__(self, num_stages: int, stage_key: str = TRAJ_STAGE_KEY):
+        self.num_stages = int(num_stages)
+        self.stage_key = stage_key
+        self._empty()
+
+    # --------------------------------------------------------------- bookkeeping
+    def _empty(self):
+        self._lists = [np.empty(0, dtype=np.int64) for _ in range(self.num_stages + 1)]
+        self._counts = np.zeros(self.num_stages + 1, dtype=np.int64)
+        self._slot_stage = np.empty(0, dtype=np.int64)  # slot -> stage (-1 empty)
+        self._slot_pos = np.empty(0, dtype=np.int64)  # slot -> position in its stage list
+        self._pending: list[torch.Tensor] = []
+
+    def extend(self, index: torch.Tensor) -> None:
+        self._pending.append(torch.as_tensor(index).reshape(-1).clone())
+
+    def add(self, index: int) -> None:
+        self.extend(torch.as_tensor([index]))
+
+    def _grow_slots(self, n: int):
+        if n > self._slot_stage.size:
+            size = max(n, 2 * self._slot_stage.size, 1024)
+            self._slot_stage = np.concatenate([self._slot_stage, np.full(size - self._slot_stage.size, -1, np.int64)])
+            self._slot_pos = np.concatenate([self._slot_pos, np.full(size - self._slot_pos.size, -1, np.int64)])
+
+    def _remove(self, slot: int):
+        s, p = self._slot_stage[slot], self._slot_pos[slot]
+        last = self._counts[s] - 1
+        moved = self._lists[s][last]
+        self._lists[s][p] = moved
+        self._slot_pos[moved] = p
+        self._counts[s] = last
+        self._slot_stage[slot] = -1
+
+    def _append(self, stage: int, slots: np.ndarray):
+        lst, c = self._lists[stage], self._counts[stage]
+        if c + slots.size > lst.size:
+            new = np.empty(max(c + slots.size, 2 * lst.size, 1024), np.int64)
+            new[:c] = lst[:c]
+            self._lists[stage] = lst = new
+        lst[c : c + slots.size] = slots
+        self._slot_stage[slots] = stage
+        self._slot_pos[slots] = np.arange(c, c + slots.size)
+        self._counts[stage] = c + slots.size
+
+    def sync(self, storage) -> None:
+        """File slots written since the last call by reading their stage label from ``storage``."""
+        if not self._pending:
+            return
+        slots = torch.cat(self._pending)
+        self._pending = []
+        stages = storage.get(slots).get(self.stage_key).reshape(-1).cpu().numpy().astype(np.int64)
+        slots = slots.cpu().numpy().astype(np.int64)
+        if stages.min() < 0 or stages.max() > self.num_stages:
+            raise ValueError(f"stage labels must lie in [0, {self.num_stages}], got {stages.min()}..{stages.max()}")
+        self._grow_slots(int(slots.max()) + 1)
+        # the same slot may appear twice in one sync (overwritten twice): keep its last label
+        _, last_idx = np.unique(slots[::-1], return_index=True)
+        keep = np.sort(slots.size - 1 - last_idx)
+        slots, stages = slots[keep], stages[keep]
+        for slot in slots[self._slot_stage[slots] >= 0]:
+            self._remove(int(slot))
+        for s in np.unique(stages):
+            self._append(int(s), slots[stages == s])
+
+    def stage_counts(self, storage=None) -> np.ndarray:
+        """Number of transitions filed under each trajectory stage ``0..N``."""
+        if storage is not None:
+            self.sync(storage)
+        return self._counts.copy()
+
+    def valid_discriminators(self, storage=None) -> np.ndarray:
+        """Which discriminators have both negatives (stage <= k) and positives (stage > k)."""
+        c = self.stage_counts(storage)
+        cum = np.cumsum(c)
+        neg = cum[:-1]
+        pos = cum[-1] - neg
+        return (neg > 0) & (pos > 0)
+
+    # ---------------------------------------------------------------- sampling
+    def _draw(self, stages: range, n: int) -> torch.Tensor:
+        counts = self._counts[list(stages)]
+        total = int(counts.sum())
+        if total == 0:
+            return torch.zeros(n, dtype=torch.long)
+        r = torch.randint(total, (n,), generator=self._rng).numpy()
+        cum = np.cumsum(counts)
+        which = np.searchsorted(cum, r, side="right")
+        offset = r - (cum - counts)[which]
+        out = np.empty(n, np.int64)
+        for w in np.unique(which):
+            m = which == w
+            out[m] = self._lists[stages[w]][offset[m]]
+        return torch.from_numpy(out)
+
+    def sample(self, storage, batch_size: int) -> tuple[torch.Tensor, dict]:
+        self.sync(storage)
+        if len(storage) == 0:
+            raise RuntimeError("the stage buffers are empty: add trajectories before sampling")
+        N = self.num_stages
+        idx = torch.empty(N, 2, batch_size, dtype=torch.long)
+        for k in range(N):
+            idx[k, 0] = self._draw(range(0, k + 1), batch_size)
+            idx[k, 1] = self._draw(range(k + 1, N + 1), batch_size)
+        return idx.reshape(-1), {"valid": torch.from_numpy(self.valid_discriminators())}
+
+    # ------------------------------------------------------------ persistence
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "num_stages": self.num_stages,
+            "lists": [torch.from_numpy(lst[:c].copy()) for lst, c in zip(self._lists, self._counts)],
+            "pending": [p.clone() for p in self._pending],
+        }
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        if int(state_dict["num_stages"]) != self.num_stages:
+            raise ValueError(f"sampler state has {state_dict['num_stages']} stages, this sampler {self.num_stages}")
+        self._empty()
+        lists = [np.asarray(t, dtype=np.int64) for t in state_dict["lists"]]
+        n = max([int(lst.max()) + 1 for lst in lists if lst.size] or [0])
+        self._grow_slots(n)
+        for s, lst in enumerate(lists):
+            if lst.size:
+                self._append(s, lst)
+        self._pending = [torch.as_tensor(p) for p in state_dict.get("pending", [])]
+
+    def dumps(self, path):
+        torch.save(self.state_dict(), f"{path}/stage_sampler.pt")
+
+    def loads(self, path):
+        self.load_state_dict(torch.load(f"{path}/stage_sampler.pt", weights_only=True))
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(num_stages={self.num_stages}, counts={self._counts.tolist()})"
+
+
+class StageBuffers(ReplayBuffer):
+    """The stage buffers ``B_0..B_N`` of Algorithm 1: one TorchRL replay buffer, one storage.
+
+    Args:
+        num_stages: ``N``.
+        keys: entries of each ``next`` state to keep (the reward's inputs and the stage index).
+        capacity: transitions held across all stages (oldest overwritten first).
+        stage_key: per-state stage index entry.
+        batch_size: per-(stage, label) batch size of :meth:`sample_discriminator_batch`.
+        scratch_dir: if given, a :class:`~torchrl.data.LazyMemmapStorage` on disk there, so very
+            large buffers need not sit in memory.
+    """
+
+    def __init__(
+        self,
+        num_stages: int,
+        keys: Sequence[str],
+        capacity: int = 1_000_000,
+        *,
+        stage_key: str = "stage",
+        batch_size: int = 256,
+        scratch_dir: str | None = None,
+    ):
+        storage = LazyMemmapStorage(capacity, scratch_dir=scratch_dir) if scratch_dir else LazyTensorStorage(capacity)
+        super().__init__(storage=storage, sampler=StageSampler(num_stages), writer=RoundRobinWriter(), batch_size=batch_size)
+        self.num_stages = int(num_stages)
+        self.keys = list(dict.fromkeys([*keys, stage_key]))
+        self.stage_key = stage_key
+        self.episodes_per_stage = np.zeros(self.num_stages + 1, dtype=np.int64)
+
+    @property
+    def stage_sampler(self) -> StageSampler:
+        return self._sampler
+
+    def add_trajectory(self, trajectory: TensorDictBase, *, demo: bool = False) -> int:
+        """File one finished trajectory (a ``(T,)`` TensorDict of transitions with ``"next"``).
+
+        Reads the ``next`` states (the reward is a function of ``s'``); returns the stage it was
+        filed under. Demonstrations go to the top stage whatever their labels say.
+        """
+        states = trajectory.get("next") if "next" in trajectory.keys() else trajectory
+        if states.batch_dims != 1:
+            raise ValueError(f"add_trajectory expects one trajectory with batch shape (T,), got {tuple(states.batch_size)}")
+        stages = states.get(self.stage_key).reshape(-1)
+        top = self.num_stages if demo else trajectory_stage(stages)
+        keep = states.shape[0] if demo else truncate_failed(stages, self.num_stages)
+        data = states[:keep].select(*self.keys).clone()
+        data.set(TRAJ_STAGE_KEY, torch.full((keep,), top, dtype=torch.long))
+        self.extend(data)
+        self.episodes_per_stage[top] += 1
+        return top
+
+    def stage_counts(self) -> np.ndarray:
+        """Transitions currently filed under each stage (``N + 1`` entries)."""
+        return self._sampler.stage_counts(self._storage)
+
+    def valid_discriminators(self) -> torch.Tensor:
+        return torch.from_numpy(self._sampler.valid_discriminators(self._storage))
+
+    def sample_discriminator_batch(self, batch_size: int | None = None) -> TensorDictBase:
+        """A ``(N, 2, B)`` TensorDict: ``[k, 0]`` negatives and ``[k, 1]`` positives of discriminator ``k``.
+
+        Adds ``"label"`` (float, 1 for positives) and ``"valid"`` (whether discriminator ``k`` has data
+        on both sides), both broadcast to ``(N, 2, B)``.
+        """
+        B = batch_size or self._batch_size
+        data, info = self.sample(B, return_info=True)
+        data = data.reshape(self.num_stages, 2, B)
+        label = torch.zeros(self.num_stages, 2, B, 1)
+        label[:, 1] = 1.0
+        data.set("label", label)
+        data.set("valid", info["valid"].view(-1, 1, 1, 1).expand(self.num_stages, 2, B, 1).clone())
+        return data
+
+    def state_dict(self) -> dict[str, Any]:
+        sd = super().state_dict()
+        sd["episodes_per_stage"] = torch.from_numpy(self.episodes_per_stage.copy())
+        return sd
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        state_dict = dict(state_dict)
+        eps = state_dict.pop("episodes_per_stage", None)
+        super().load_state_dict(state_dict)
+        if eps is not None:
+            self.episodes_per_stage = np.asarray(eps, dtype=np.int64)
+
+
+class TrajectoryAssembler:
+    """Assemble finished episodes from consecutive collector batches, per env index.
+
+    Collector batches have shape ``(*env_batch, T)``; an episode may span several batches. ``add``
+    returns the episodes that ended in this batch, each a ``(T_ep,)`` TensorDict, in order of ending.
+    """
+
+    def __init__(self, done_key=("next", "done")):
+        self.done_key = done_key
+        self._partial: dict[int, list[TensorDictBase]] = {}
+
+    def add(self, batch: TensorDictBase) -> list[TensorDictBase]:
+        if batch.batch_dims == 1:
+            per_env = [batch]
+        else:
+            per_env = list(batch.reshape(-1, batch.shape[-1]).unbind(0))
+        finished = []
+        for i, td in enumerate(per_env):
+            done = td.get(self.done_key).reshape(-1)
+            ends = done.nonzero().reshape(-1).tolist()
+            start = 0
+            for end in ends:
+                parts = self._partial.pop(i, []) + [td[start : end + 1]]
+                finished.append(torch.cat(parts, 0) if len(parts) > 1 else parts[0].clone())
+                start = end + 1
+            if start < td.shape[0]:
+                self._partial.setdefault(i, []).append(td[start:].clone())
+        return finished
+
+    def reset(self):
+        self._partial.clear()

@@ -1,0 +1,110 @@
+"""Pre-flight checks: a usable Vulkan device and downloaded ManiSkill assets.
+
+SAPIEN (ManiSkill3's simulator) needs a Vulkan device even for state observations, and ManiSkill
+asks interactively on stdin before downloading a missing asset (which dies with ``EOFError`` in a
+batch job). Both are checked here first, so a run fails at once with a message naming the fix.
+``python -m drs_torchrl.envs.doctor`` (or ``drs-doctor``) runs the checks and steps PickCube once.
+"""
+from __future__ import annotations
+
+import functools
+import sys
+
+VULKAN_HELP = (
+    "No usable Vulkan device: SAPIEN (ManiSkill3's simulator) needs one even for state "
+    "observations. On a machine with an NVIDIA GPU install its driver with the Vulkan ICD. On a "
+    "CPU-only Debian 12 machine install Mesa's software driver (lavapipe) from backports, as root:\n"
+    "  echo 'deb http://deb.debian.org/debian bookworm-backports main' "
+    "> /etc/apt/sources.list.d/backports.list\n"
+    "  apt-get update && apt-get install -y -t bookworm-backports mesa-vulkan-drivers libvulkan1\n"
+    "(bin/setup.sh does this for you). Debian 12's own Mesa 22.3 is too old."
+)
+
+# asset groups of envs whose ManiSkill registration does not list them
+_EXTRA_ASSETS = {
+    "OpenCabinetDoor-v1": "partnet_mobility_cabinet",
+    "OpenCabinetDrawer-v1": "partnet_mobility_cabinet",
+}
+
+
+class MissingAssetError(RuntimeError):
+    """A ManiSkill asset the environment needs is not downloaded."""
+
+
+class VulkanUnavailableError(RuntimeError):
+    """SAPIEN found no Vulkan device."""
+
+
+@functools.lru_cache(maxsize=1)
+def check_vulkan() -> str:
+    """Return SAPIEN's render-device summary; raise :class:`VulkanUnavailableError` if none."""
+    try:
+        import sapien
+
+        summary = sapien.render.get_device_summary()
+        sapien.render.RenderSystem()  # what building any actor needs
+    except Exception as exc:  # SAPIEN raises RuntimeError("failed to find a rendering device")
+        raise VulkanUnavailableError(f"{VULKAN_HELP}\n(SAPIEN said: {exc})") from exc
+    return summary
+
+
+def missing_assets(env_id: str, env_kwargs: dict | None = None) -> list[str]:
+    """ManiSkill data-source ids that ``env_id`` (and its robot) need and that are not on disk."""
+    from mani_skill.utils.assets import data
+
+    groups = [env_id]
+    if env_id in _EXTRA_ASSETS:
+        groups.append(_EXTRA_ASSETS[env_id])
+    robot = (env_kwargs or {}).get("robot_uids")
+    if isinstance(robot, str):
+        groups.append(robot)
+    missing = []
+    for group in groups:
+        try:
+            ids = data.expand_data_group_into_individual_data_source_ids(group)
+        except Exception:
+            ids = [group] if group in data.DATA_SOURCES else []
+        missing += [i for i in ids if not data.is_data_source_downloaded(i)]
+    return sorted(set(missing))
+
+
+def asset_download_command(env_id: str, env_kwargs: dict | None = None) -> str:
+    from mani_skill.utils.assets import data
+
+    groups = [g for g in (env_id, _EXTRA_ASSETS.get(env_id), (env_kwargs or {}).get("robot_uids")) if g]
+    ids = [g for g in groups if isinstance(g, str) and (g in data.DATA_GROUPS or g in data.DATA_SOURCES)]
+    return " && ".join(f"python -m mani_skill.utils.download_asset {i} -y" for i in ids)
+
+
+def ensure_env_ready(env_id: str, env_kwargs: dict | None = None) -> None:
+    """Fail fast (never on ManiSkill's interactive prompt) if ``env_id`` cannot run here."""
+    check_vulkan()
+    missing = missing_assets(env_id, env_kwargs)
+    if missing:
+        shown = ", ".join(missing[:5]) + (f" and {len(missing) - 5} more" if len(missing) > 5 else "")
+        raise MissingAssetError(
+            f"{env_id} needs ManiSkill assets that are not downloaded: {shown}. Download them with:\n"
+            f"  {asset_download_command(env_id, env_kwargs)}\n"
+            "(set MS_ASSET_DIR to keep them elsewhere than ~/.maniskill/data)."
+        )
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Print the render device and step PickCube once; exit 1 with the fix if anything fails."""
+    try:
+        print("render device:", check_vulkan().strip().splitlines()[0] if check_vulkan().strip() else "?")
+        from drs_torchrl.envs.maniskill import ManiSkillEnv
+
+        env = ManiSkillEnv("PickCube-v1", ("is_grasped", "success"))
+        env.set_seed(0)
+        td = env.rand_step(env.reset())
+        env.close()
+        print("PickCube-v1 stepped:", tuple(td["next", "observation"].shape))
+    except (VulkanUnavailableError, MissingAssetError) as exc:
+        print(exc, file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

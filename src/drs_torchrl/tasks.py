@@ -1,0 +1,111 @@
+"""Task families: the one place that knows a family's envs, variants, stage indicators and split.
+
+A task family (Sec. 3) is a set of task variants that share a success criterion and differ in
+objects, initial states or dynamics. Everything downstream (env construction, the stage transform,
+the reward's inputs, the train/test split) reads a :class:`TaskFamily` instead of special-casing
+tasks. ``get_family(name)`` looks one up; ``register_family`` adds one.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+
+@dataclass(frozen=True)
+class TaskFamily:
+    """Description of a task family.
+
+    Attributes:
+        name: registry key (``env=<name>`` on the command line).
+        env_id: ManiSkill environment id that the variants parameterise.
+        stage_keys: ordered stage indicators (Appendix A); the last one is success. Stage ``k`` of a
+            state is the number of (monotone) indicators that hold, so ``N = len(stage_keys)``.
+        info_keys: info entries copied into the TensorDict (at least ``stage_keys``).
+        reward_in_keys: observation entries the learned reward reads.
+        variants: named variants, each a dict of environment keyword arguments.
+        train_variants / test_variants: disjoint variant names for reward learning / reuse.
+        control_mode, max_episode_steps: as in the paper's setup (EE delta position control).
+    """
+
+    name: str
+    env_id: str
+    stage_keys: tuple[str, ...]
+    variants: dict[str, dict[str, Any]]
+    train_variants: tuple[str, ...]
+    test_variants: tuple[str, ...]
+    info_keys: tuple[str, ...] = ()
+    reward_in_keys: tuple[str, ...] = ("observation", "stage_indicators")
+    control_mode: str | None = "pd_ee_delta_pos"
+    max_episode_steps: int = 50
+    description: str = ""
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self):
+        if not self.stage_keys:
+            raise ValueError(f"family {self.name!r}: stage_keys must name at least the success indicator")
+        overlap = set(self.train_variants) & set(self.test_variants)
+        if overlap:
+            raise ValueError(f"family {self.name!r}: train and test variants overlap: {sorted(overlap)}")
+        unknown = (set(self.train_variants) | set(self.test_variants)) - set(self.variants)
+        if unknown:
+            raise ValueError(f"family {self.name!r}: split names unknown variants {sorted(unknown)}")
+
+    @property
+    def num_stages(self) -> int:
+        return len(self.stage_keys)
+
+    @property
+    def all_info_keys(self) -> tuple[str, ...]:
+        return tuple(dict.fromkeys((*self.info_keys, *self.stage_keys)))
+
+    def variant_kwargs(self, variant: str, overrides: dict | None = None) -> dict[str, Any]:
+        """Environment kwargs of ``variant`` (``"train"``/``"test"`` mean the split's first variant)."""
+        if variant == "train":
+            variant = self.train_variants[0]
+        elif variant == "test":
+            variant = self.test_variants[0]
+        if variant not in self.variants:
+            raise KeyError(
+                f"family {self.name!r} has no variant {variant!r}; known: {sorted(self.variants)} "
+                f"(or 'train'/'test'). Set a parameter directly with env.variant_overrides."
+            )
+        return {**self.variants[variant], **(overrides or {})}
+
+
+_FAMILIES: dict[str, TaskFamily] = {}
+
+
+def register_family(family: TaskFamily) -> TaskFamily:
+    _FAMILIES[family.name] = family
+    return family
+
+
+def get_family(name: str) -> TaskFamily:
+    try:
+        return _FAMILIES[name]
+    except KeyError:
+        raise KeyError(f"unknown task family {name!r}; known families: {sorted(_FAMILIES)}") from None
+
+
+def list_families() -> list[str]:
+    return sorted(_FAMILIES)
+
+
+register_family(
+    TaskFamily(
+        name="pick_cube",
+        env_id="PickCubeSized-v1",
+        description="Panda picks a cube and holds it at a goal in mid-air (Pick-and-Place, Appendix A)",
+        # grasped -> placed (within goal_thresh of the goal) -> placed and static (= success)
+        stage_keys=("is_grasped", "is_obj_placed", "success"),
+        info_keys=("is_robot_static",),
+        variants={
+            "cube_2cm": {"cube_half_size": 0.02},
+            "cube_1_5cm": {"cube_half_size": 0.015},
+            "cube_2_5cm": {"cube_half_size": 0.025},
+            "cube_1_75cm": {"cube_half_size": 0.0175},
+        },
+        train_variants=("cube_2cm", "cube_2_5cm"),
+        test_variants=("cube_1_5cm", "cube_1_75cm"),
+    )
+)

@@ -1,0 +1,387 @@
+"""The DrS training loop (Algorithm 1): phase 1 (reward learning) and phase 2 (reward reuse).
+
+Both phases are the same off-policy SAC loop; phase 1 adds the stage buffers and the
+discriminator updates, and the reward is recomputed from the current discriminators each time SAC
+samples. In phase 2 (and for the baselines) the reward sits frozen in the env.
+
+``train(cfg, phase)`` wires TorchRL pieces built from the Hydra config; the pieces themselves live in
+their own modules and are usable without it.
+"""
+from __future__ import annotations
+
+import json
+import math
+import random
+import time
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+from tensordict import TensorDict
+from torchrl.collectors import Collector
+from torchrl.data import LazyTensorStorage, ReplayBuffer
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+from tqdm.auto import tqdm
+
+from drs_torchrl.data import StageBuffers, TrajectoryAssembler
+from drs_torchrl.envs.factory import make_family_env
+from drs_torchrl.models import make_sac_modules
+from drs_torchrl.objectives import DiscriminatorLoss
+from drs_torchrl.rewards import new_drs_reward, reward_setup
+from drs_torchrl.run_logger import RunLogger
+from drs_torchrl.tasks import get_family
+
+POLICY_FORMAT = "drs-torchrl/policy"
+
+
+class ConfigError(ValueError):
+    """A configuration value that cannot work, with the fix in its message."""
+
+
+def validate_config(cfg: DictConfig, phase: str) -> None:
+    """Reject values that would fail later or silently do nothing."""
+    a = cfg.algo
+    checks = [
+        (cfg.total_frames > 0, f"total_frames must be > 0, got {cfg.total_frames}"),
+        (a.batch_size > 0, f"algo.batch_size must be > 0, got {a.batch_size}"),
+        (a.frames_per_batch > 0, f"algo.frames_per_batch must be > 0, got {a.frames_per_batch}"),
+        (a.utd > 0, f"algo.utd must be > 0, got {a.utd}"),
+        (0 < a.gamma <= 1, f"algo.gamma must be in (0, 1], got {a.gamma}"),
+        (a.learning_starts >= 0, f"algo.learning_starts must be >= 0, got {a.learning_starts}"),
+        (a.buffer_size >= a.batch_size, f"algo.buffer_size ({a.buffer_size}) is smaller than algo.batch_size ({a.batch_size})"),
+        (cfg.eval.episodes >= 0 and cfg.eval.interval > 0, "eval.episodes must be >= 0 and eval.interval > 0"),
+        (phase in ("learn", "reuse"), f"phase must be learn or reuse, got {phase}"),
+    ]
+    if phase == "learn" and cfg.reward.name == "drs":
+        checks.append((cfg.reward.disc.batch_size > 0, "reward.disc.batch_size must be > 0"))
+    for ok, msg in checks:
+        if not ok:
+            raise ConfigError(msg)
+    if cfg.device not in ("cpu", "auto") and not str(cfg.device).startswith("cuda"):
+        raise ConfigError(f"device must be cpu, cuda[:i] or auto, got {cfg.device}")
+    if str(cfg.device).startswith("cuda") and not torch.cuda.is_available():
+        raise ConfigError(f"device={cfg.device} was requested but CUDA is not available; use device=cpu")
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def _episode_stats(episodes, num_stages: int, reward_fn) -> dict[str, float]:
+    stages = torch.tensor([int(ep["next", "stage"].max()) for ep in episodes], dtype=torch.float32)
+    out = {
+        "episodes": float(len(episodes)),
+        "success_rate": float(np.mean([bool(ep["next", "success"].any()) for ep in episodes])),
+        "episode_length": float(np.mean([ep.shape[0] for ep in episodes])),
+        "episode_return": float(np.mean([float(reward_fn(ep).sum()) for ep in episodes])),
+    }
+    for k in range(1, num_stages + 1):
+        out[f"reach_stage_{k}"] = float((stages >= k).float().mean())
+    return out
+
+
+class Trainer:
+    """Holds the TorchRL pieces of one run and runs Algorithm 1 over them."""
+
+    def __init__(self, cfg: DictConfig, phase: str, run_dir: str | Path):
+        validate_config(cfg, phase)
+        self.cfg, self.phase, self.run_dir = cfg, phase, Path(run_dir)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        (self.run_dir / "checkpoints").mkdir(exist_ok=True)
+        OmegaConf.save(cfg, self.run_dir / "config.yaml", resolve=True)
+        seed_everything(int(cfg.seed))
+        self.device = torch.device("cuda" if cfg.device == "auto" and torch.cuda.is_available() else ("cpu" if cfg.device == "auto" else cfg.device))
+        self.family = family = get_family(cfg.env.family)
+        self.num_stages = family.num_stages
+        self.reward = reward = reward_setup(cfg.reward, phase)
+        env_kwargs = dict(
+            variant_overrides=OmegaConf.to_container(cfg.env.variant_overrides) if cfg.env.variant_overrides else None,
+            reward_mode=reward.env_reward_mode,
+            semi_sparse_reward=reward.semi_sparse,
+            semi_sparse_offset=reward.semi_sparse_offset,
+            sim_backend=cfg.env.sim_backend,
+            num_envs=cfg.env.num_envs,
+            control_mode=cfg.env.control_mode,
+            max_episode_steps=cfg.env.max_episode_steps,
+        )
+        self.env = make_family_env(family, cfg.env.split, seed=int(cfg.seed), **env_kwargs)
+        self.eval_env = make_family_env(family, cfg.eval.get("split") or cfg.env.split, seed=int(cfg.seed) + 10_000, **env_kwargs)
+        if reward.frozen is not None:
+            reward.frozen.check_compatible(self.env.observation_spec, num_stages=self.num_stages, family=family.name)
+            self.env.append_transform(reward.frozen)
+            self.eval_env.append_transform(reward.frozen.clone())
+        if phase == "learn" and reward.name == "drs":
+            meta = {
+                "family": family.name,
+                "env_id": family.env_id,
+                "variant": cfg.env.split,
+                "variant_kwargs": family.variant_kwargs(cfg.env.split, env_kwargs["variant_overrides"]),
+                "stage_keys": list(family.stage_keys),
+                "seed": int(cfg.seed),
+            }
+            reward.learned = new_drs_reward(cfg.reward, family, self.env.observation_spec, meta)
+        self.learned = reward.learned
+
+        a = cfg.algo
+        self.actor, self.qvalue = make_sac_modules(
+            self.env.observation_spec, self.env.action_spec, list(a.policy_in_keys), list(a.hidden)
+        )
+        self.loss = instantiate(a.loss)(actor_network=self.actor, qvalue_network=self.qvalue, action_spec=self.env.action_spec)
+        self.loss.make_value_estimator(gamma=float(a.gamma))
+        self.target_updater = instantiate(a.target_update)(self.loss)
+        self.optim_actor = instantiate(a.optim)(list(self.loss.actor_network_params.values(True, True)))
+        self.optim_critic = instantiate(a.optim)(list(self.loss.qvalue_network_params.values(True, True)))
+        self.optim_alpha = instantiate(a.optim)([self.loss.log_alpha])
+        self.replay = ReplayBuffer(
+            storage=LazyTensorStorage(int(a.buffer_size)),
+            batch_size=int(a.batch_size),
+            transform=self.learned,  # recomputes ("next", "reward") from the current discriminators
+        )
+        if self.learned is not None:
+            d = cfg.reward.disc
+            self.stage_buffers = StageBuffers(
+                self.num_stages, self.learned.reward_in_keys, capacity=int(cfg.reward.stage_buffer_size), batch_size=int(d.batch_size)
+            )
+            self.disc_loss = DiscriminatorLoss(
+                self.learned.discriminators, self.learned.reward_in_keys,
+                early_stop_threshold=d.early_stop_threshold, window=int(d.window),
+            )
+            self.optim_disc = torch.optim.Adam(self.learned.discriminators.parameters(), lr=float(d.lr))
+        else:
+            self.stage_buffers = self.disc_loss = self.optim_disc = None
+        self.collector = Collector(
+            self.env,
+            self.actor,
+            frames_per_batch=int(a.frames_per_batch),
+            total_frames=int(cfg.total_frames),
+            init_random_frames=int(a.learning_starts),
+            device=self.device,
+            auto_register_policy_transforms=False,
+        )
+        self.assembler = TrajectoryAssembler()
+        self.logger = RunLogger(self.run_dir, tensorboard=cfg.logger.tensorboard, csv_files=cfg.logger.csv)
+        self.frames = 0
+        self.updates = 0
+        self.disc_updates = 0
+        self._owed_updates = 0.0
+        self._last_eval_frames = -1
+
+    # ------------------------------------------------------------------ rewards
+    def episode_reward(self, episode) -> torch.Tensor:
+        """Reward of an episode's transitions under the reward being trained on (for logging)."""
+        if self.learned is not None:
+            return self.learned.reward(episode.get("next"))
+        return episode.get(("next", "reward"))
+
+    # ------------------------------------------------------------------ updates
+    def _disc_step(self) -> TensorDict | None:
+        if self.stage_buffers is None or len(self.stage_buffers) == 0:
+            return None
+        batch = self.stage_buffers.sample_discriminator_batch()
+        out = self.disc_loss(batch)
+        loss = out["loss_discriminator"]
+        if loss.requires_grad:
+            self.optim_disc.zero_grad(set_to_none=True)
+            loss.backward()
+            self.optim_disc.step()
+            self.disc_updates += 1
+        return out.detach()
+
+    def _sac_step(self) -> tuple[TensorDict, torch.Tensor]:
+        sample = self.replay.sample().to(self.device)
+        out = self.loss(sample)
+        total = out["loss_actor"] + out["loss_qvalue"] + out["loss_alpha"]
+        for opt in (self.optim_actor, self.optim_critic, self.optim_alpha):
+            opt.zero_grad(set_to_none=True)
+        total.backward()
+        for opt in (self.optim_actor, self.optim_critic, self.optim_alpha):
+            opt.step()
+        self.target_updater.step()
+        self.updates += 1
+        return out.detach(), sample.get(("next", "reward")).detach()
+
+    # --------------------------------------------------------------- evaluation
+    def evaluate(self) -> dict[str, float]:
+        n = int(self.cfg.eval.episodes)
+        if n == 0:
+            return {}
+        episodes = []
+        with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
+            for _ in range(n):
+                ep = self.eval_env.rollout(10_000, self.actor, break_when_any_done=True)
+                episodes.append(ep)
+        reward_fn = (lambda ep: self.learned.reward(ep.get("next"))) if self.learned is not None else (lambda ep: ep.get(("next", "reward")))
+        return _episode_stats(episodes, self.num_stages, reward_fn)
+
+    # -------------------------------------------------------------- checkpoints
+    def save_checkpoints(self, tag: str = "latest") -> dict[str, str]:
+        ck = self.run_dir / "checkpoints"
+        paths = {}
+        if self.learned is not None:
+            p = self.learned.save(ck / "reward.pt", frames=self.frames, phase=self.phase)
+            paths["reward"] = str(p)
+        policy = {
+            "format": POLICY_FORMAT,
+            "version": 1,
+            "frames": self.frames,
+            "family": self.family.name,
+            "policy_in_keys": list(self.cfg.algo.policy_in_keys),
+            "hidden": list(self.cfg.algo.hidden),
+            "actor": self.actor.state_dict(),
+            "qvalue": self.qvalue.state_dict(),
+        }
+        tmp = ck / "policy.pt.tmp"
+        torch.save(policy, tmp)
+        tmp.replace(ck / "policy.pt")
+        paths["policy"] = str(ck / "policy.pt")
+        return paths
+
+    # --------------------------------------------------------------------- run
+    def run(self) -> dict[str, Any]:
+        cfg, a = self.cfg, self.cfg.algo
+        total = int(cfg.total_frames)
+        log_every, eval_every = int(cfg.logger.interval), int(cfg.eval.interval)
+        ckpt_every = int(cfg.checkpoint_interval)
+        next_log, next_eval, next_ckpt = log_every, eval_every, ckpt_every
+        recent = deque(maxlen=int(cfg.logger.episode_window))
+        sac_stats: list[TensorDict] = []
+        disc_stats: list[TensorDict] = []
+        rewards: list[torch.Tensor] = []
+        t_collect = t_update = 0.0
+        window_frames, window_updates, t_window = 0, 0, time.perf_counter()
+        summary: dict[str, Any] = {"phase": self.phase, "run_dir": str(self.run_dir)}
+        bar = tqdm(total=total, desc=f"drs-{self.phase}", unit="step", disable=not cfg.logger.progress_bar, dynamic_ncols=True)
+        interrupted = False
+        t0 = time.perf_counter()
+        it = iter(self.collector)
+        try:
+            while True:
+                tc = time.perf_counter()
+                try:
+                    batch = next(it)
+                except StopIteration:
+                    break
+                t_collect += time.perf_counter() - tc
+                n = batch.numel()
+                self.frames += n
+                window_frames += n
+                self.replay.extend(batch.reshape(-1))
+                episodes = self.assembler.add(batch)
+                if episodes:
+                    recent.extend(episodes)
+                    if self.stage_buffers is not None:
+                        stages = [self.stage_buffers.add_trajectory(ep) for ep in episodes]
+                        self.disc_loss.record_episodes(stages)
+
+                tu = time.perf_counter()
+                if self.frames >= int(a.learning_starts) and len(self.replay) >= int(a.batch_size):
+                    self._owed_updates += n * float(a.utd)
+                    k = int(self._owed_updates)
+                    self._owed_updates -= k
+                    for _ in range(k):
+                        if self.stage_buffers is not None:
+                            for _ in range(int(cfg.reward.disc.updates_per_sac_update)):
+                                d = self._disc_step()
+                                if d is not None:
+                                    disc_stats.append(d)
+                        out, r = self._sac_step()
+                        sac_stats.append(out)
+                        rewards.append(r)
+                    window_updates += k
+                t_update += time.perf_counter() - tu
+                bar.update(n)
+
+                if self.frames >= next_log:
+                    next_log += log_every
+                    now = time.perf_counter()
+                    row = self._train_row(recent, sac_stats, disc_stats, rewards, window_frames, window_updates, now - t_window, t_collect, t_update)
+                    self.logger.log("train", self.frames, row)
+                    bar.set_postfix(success=f"{row.get('success_rate', 0):.2f}", sps=f"{row['env_steps_per_s']:.0f}")
+                    sac_stats, disc_stats, rewards = [], [], []
+                    window_frames = window_updates = 0
+                    t_window, t_collect, t_update = now, 0.0, 0.0
+                if self.frames >= next_eval:
+                    next_eval += eval_every
+                    ev = self.evaluate()
+                    self._last_eval_frames = self.frames
+                    if ev:
+                        self.logger.log("eval", self.frames, ev)
+                        summary["last_eval"] = ev
+                if self.frames >= next_ckpt:
+                    next_ckpt += ckpt_every
+                    self.save_checkpoints()
+                    self.logger.flush()
+        except KeyboardInterrupt:
+            interrupted = True
+            tqdm.write(f"interrupted at {self.frames} frames: saving checkpoints in {self.run_dir / 'checkpoints'}")
+        finally:
+            bar.close()
+        elapsed = time.perf_counter() - t0
+        if not interrupted and self._last_eval_frames != self.frames:
+            ev = self.evaluate()
+            if ev:
+                self.logger.log("eval", self.frames, ev)
+                summary["last_eval"] = ev
+        summary["checkpoints"] = self.save_checkpoints()
+        summary.update(
+            frames=self.frames, updates=self.updates, disc_updates=self.disc_updates,
+            wall_time_s=elapsed, env_steps_per_s=self.frames / max(elapsed, 1e-9), interrupted=interrupted,
+        )
+        if self.stage_buffers is not None:
+            summary["stage_buffer_transitions"] = self.stage_buffers.stage_counts().tolist()
+            summary["stage_buffer_episodes"] = self.stage_buffers.episodes_per_stage.tolist()
+        (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+        self.close()
+        return summary
+
+    def _train_row(self, recent, sac_stats, disc_stats, rewards, frames, updates, dt, t_collect, t_update) -> dict[str, float]:
+        row: dict[str, float] = {
+            "frames": float(self.frames),
+            "updates": float(self.updates),
+            "env_steps_per_s": frames / max(dt, 1e-9),
+            "updates_per_s": updates / max(t_update, 1e-9) if updates else 0.0,
+            "collect_steps_per_s": frames / max(t_collect, 1e-9),
+        }
+        if recent:
+            row.update(_episode_stats(list(recent), self.num_stages, self.episode_reward))
+        if sac_stats:
+            st = torch.stack([s.select("loss_actor", "loss_qvalue", "loss_alpha", "alpha", "entropy") for s in sac_stats])
+            for k in st.keys():
+                row[k] = float(st[k].float().mean())
+        if rewards:
+            r = torch.cat(rewards)
+            row.update(reward_mean=float(r.mean()), reward_std=float(r.std()), reward_min=float(r.min()), reward_max=float(r.max()))
+        if disc_stats:
+            st = torch.stack(disc_stats)
+            for k in st.keys():
+                row[f"disc_{k}"] = float(st[k].float().mean())
+        if self.stage_buffers is not None:
+            counts = self.stage_buffers.stage_counts()
+            for s, c in enumerate(counts):
+                row[f"stage_buffer_{s}"] = float(c)
+            rates = self.disc_loss.beyond_rates()
+            for k, v in enumerate(rates.tolist()):
+                row[f"beyond_rate_{k}"] = v
+        return row
+
+    def close(self) -> None:
+        self.logger.close()
+        try:
+            self.collector.shutdown()
+        except Exception:
+            pass
+        for env in (self.env, self.eval_env):
+            if not env.is_closed:
+                env.close()
+
+
+def train(cfg: DictConfig, phase: str, run_dir: str | Path) -> dict[str, Any]:
+    """Run one phase with the Hydra config ``cfg``; returns the run summary."""
+    trainer = Trainer(cfg, phase, run_dir)
+    return trainer.run()

@@ -1,0 +1,285 @@
+"""The DrS learned reward (Sec. 4.2, Eq. 4) as a TorchRL transform.
+
+``R(s') = k + alpha * tanh(D_k(s'))`` where ``k`` is the stage index of the next state ``s'`` and
+``D_k`` the discriminator of stage ``k`` ("got beyond stage k" vs "stopped at k"). Because
+``|tanh| < 1``, any ``alpha < 1/2`` ranks every state of stage ``k+1`` above every state of stage
+``k``. At the top stage ``N`` (success) there is no discriminator and the dense term is 0.
+
+Formulas (``formula=``):
+    * ``"paper"``: ``k + alpha * tanh(D_k(s'))`` (Eq. 4).
+    * ``"rescaled"``: the authors' public code, ``(k + alpha * tanh(D_k(s'))) / N + offset``
+      (with alpha = 1/3 and offset = -2 this is ``(3k + tanh(D_k)) / (3N) - 2``).
+    * ``"sum"``: the reward-formulation ablation of Appendix F.3, ``sum_k tanh(D_k(s'))``, which
+      ignores the stage index (it does not keep the ordering guarantee).
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import torch
+from tensordict import TensorDictBase
+from torch import nn
+from torchrl.envs.transforms import Transform
+
+CHECKPOINT_FORMAT = "drs-torchrl/reward"
+CHECKPOINT_VERSION = 1
+FORMULAS = ("paper", "rescaled", "sum")
+_ACTIVATIONS = {"sigmoid": nn.Sigmoid, "relu": nn.ReLU, "tanh": nn.Tanh, "elu": nn.ELU}
+
+
+class RewardCheckpointError(ValueError):
+    """A reward checkpoint that cannot be used: corrupt, foreign, too new, or mismatched."""
+
+
+class StageDiscriminators(nn.Module):
+    """One small MLP per stage ``k = 0..N-1`` (Appendix E.1: one hidden layer of 32 units).
+
+    ``forward(x)`` returns the logits of every discriminator, shape ``(*batch, N)``, so the reward
+    of a batch of mixed stages is one pass followed by a gather.
+    """
+
+    def __init__(self, num_stages: int, in_features: int, hidden: Sequence[int] | int = (32,), activation: str = "sigmoid"):
+        super().__init__()
+        if num_stages < 1:
+            raise ValueError("num_stages must be >= 1")
+        if activation not in _ACTIVATIONS:
+            raise ValueError(f"activation must be one of {sorted(_ACTIVATIONS)}, got {activation!r}")
+        hidden = [hidden] if isinstance(hidden, int) else list(hidden)
+        self.num_stages, self.in_features, self.hidden, self.activation = num_stages, in_features, hidden, activation
+
+        def mlp() -> nn.Sequential:
+            layers, d = [], in_features
+            for h in hidden:
+                layers += [nn.Linear(d, h), _ACTIVATIONS[activation]()]
+                d = h
+            layers.append(nn.Linear(d, 1))
+            return nn.Sequential(*layers)
+
+        self.nets = nn.ModuleList(mlp() for _ in range(num_stages))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.cat([net(x) for net in self.nets], dim=-1)
+
+    def stage_logits(self, x: torch.Tensor, k: int) -> torch.Tensor:
+        """Logits of discriminator ``k`` only, shape ``(*batch,)``."""
+        return self.nets[k](x).squeeze(-1)
+
+
+class DrSReward(Transform):
+    """Learned dense reward of DrS (Eq. 4), holding the per-stage discriminators.
+
+    Args:
+        num_stages: ``N``, the number of stage indicators (success included).
+        in_keys: observation entries the discriminators read (concatenated), e.g.
+            ``["observation", "stage_indicators"]``.
+        in_shapes: trailing size of each entry of ``in_keys`` (``{key: dim}``).
+        stage_key: integer stage index of the state (written by :class:`StageIndicator`).
+        formula: ``"paper"``, ``"rescaled"`` or ``"sum"`` (see module docstring).
+        alpha: weight of the dense term; ``0 < alpha < 1/2`` keeps the stage ordering.
+        offset: constant added by the ``"rescaled"`` formula (public code: -2).
+        hidden, activation: discriminator architecture.
+        reward_key: where the reward is written.
+        metadata: free-form description saved with checkpoints (task family, env id, ...).
+
+    It works inside a :class:`~torchrl.envs.TransformedEnv` (rewards of ``next`` states), as a
+    replay-buffer transform (rewards recomputed with the current discriminators at sampling time:
+    ``forward`` reads and writes the ``"next"`` sub-TensorDict), and on a bare TensorDict of states.
+    The reward is computed without gradients; train the discriminators through
+    :attr:`discriminators` (see :class:`~drs_torchrl.objectives.DiscriminatorLoss`).
+    """
+
+    def __init__(
+        self,
+        num_stages: int,
+        in_keys: Sequence[str],
+        in_shapes: Mapping[str, int],
+        *,
+        stage_key: str = "stage",
+        formula: str = "paper",
+        alpha: float = 1.0 / 3.0,
+        offset: float = -2.0,
+        hidden: Sequence[int] | int = (32,),
+        activation: str = "sigmoid",
+        reward_key: str = "reward",
+        metadata: Mapping[str, Any] | None = None,
+    ):
+        if formula not in FORMULAS:
+            raise ValueError(f"formula must be one of {FORMULAS}, got {formula!r}")
+        if formula != "sum" and not 0.0 < alpha < 0.5:
+            raise ValueError(
+                f"alpha={alpha} breaks the stage ordering of Eq. 4: it must satisfy 0 < alpha < 1/2 "
+                "(the paper uses 1/3)."
+            )
+        in_keys = [k if isinstance(k, str) else tuple(k) for k in in_keys]
+        missing = [k for k in in_keys if k not in in_shapes]
+        if missing:
+            raise ValueError(f"in_shapes lacks the sizes of {missing}")
+        super().__init__(in_keys=[*in_keys, stage_key], out_keys=[reward_key])
+        self.reward_in_keys = list(in_keys)
+        self.in_shapes = {k: int(in_shapes[k]) for k in in_keys}
+        self.num_stages = int(num_stages)
+        self.stage_key = stage_key
+        self.formula = formula
+        self.alpha = float(alpha)
+        self.offset = float(offset)
+        self.reward_key = reward_key
+        self.metadata = dict(metadata or {})
+        self.discriminators = StageDiscriminators(
+            self.num_stages, sum(self.in_shapes.values()), hidden, activation
+        )
+
+    # ------------------------------------------------------------ reward math
+    def features(self, td: TensorDictBase) -> torch.Tensor:
+        """Concatenate the reward inputs of states held at the root of ``td``."""
+        return torch.cat([td.get(k).to(torch.float32) for k in self.reward_in_keys], dim=-1)
+
+    def combine(self, logits: torch.Tensor, stage: torch.Tensor) -> torch.Tensor:
+        """Eq. 4 from all-stage logits ``(*b, N)`` and stage indices ``(*b, 1)``; returns ``(*b, 1)``."""
+        stage = stage.to(torch.long)
+        if self.formula == "sum":
+            return torch.tanh(logits).sum(-1, keepdim=True)
+        k = stage.clamp(0, self.num_stages)
+        dense = torch.tanh(logits.gather(-1, k.clamp(max=self.num_stages - 1)))
+        dense = torch.where(k < self.num_stages, dense, torch.zeros_like(dense))
+        r = k.to(logits.dtype) + self.alpha * dense
+        if self.formula == "rescaled":
+            r = r / self.num_stages + self.offset
+        return r
+
+    def reward(self, td: TensorDictBase) -> torch.Tensor:
+        """Reward of the states at the root of ``td`` (``(*batch, 1)``), without gradients."""
+        with torch.no_grad():
+            return self.combine(self.discriminators(self.features(td)), td.get(self.stage_key))
+
+    def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
+        next_tensordict.set(self.reward_key, self.reward(next_tensordict))
+        return next_tensordict
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        if "next" in tensordict.keys():
+            self._call(tensordict.get("next"))
+            return tensordict
+        return self._call(tensordict)
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        return tensordict_reset
+
+    def reward_bounds(self) -> tuple[float, float]:
+        """Range of the reward over all stages (for ``"paper"``: ``(-alpha, N)``)."""
+        lo = torch.tensor([[0.0]]), torch.tensor([[0]])
+        hi_stage = torch.tensor([[self.num_stages]])
+        if self.formula == "sum":
+            return (-float(self.num_stages), float(self.num_stages))
+        low = self.combine(torch.full((1, self.num_stages), -1e4), lo[1])
+        high = self.combine(torch.zeros((1, self.num_stages)), hi_stage)
+        return float(low), float(high)
+
+    # ------------------------------------------------------------ construction
+    @classmethod
+    def from_spec(cls, observation_spec, num_stages: int, in_keys: Sequence[str], **kwargs) -> "DrSReward":
+        """Build with input sizes read from an env's observation spec (e.g. ``env.observation_spec``)."""
+        shapes = {}
+        for k in in_keys:
+            if k not in observation_spec.keys(True, True):
+                raise KeyError(f"reward input {k!r} is not in the observation spec; it has {list(observation_spec.keys(True, True))}")
+            shapes[k] = int(observation_spec[k].shape[-1])
+        return cls(num_stages, in_keys, shapes, **kwargs)
+
+    def description(self) -> dict[str, Any]:
+        d = self.discriminators
+        return {
+            "num_stages": self.num_stages,
+            "in_keys": list(self.reward_in_keys),
+            "in_shapes": dict(self.in_shapes),
+            "stage_key": self.stage_key,
+            "formula": self.formula,
+            "alpha": self.alpha,
+            "offset": self.offset,
+            "hidden": list(d.hidden),
+            "activation": d.activation,
+            "reward_key": self.reward_key,
+            "normalization": None,
+            "metadata": dict(self.metadata),
+        }
+
+    # ------------------------------------------------------------ checkpoints
+    def save(self, path: str | os.PathLike, **extra_metadata) -> Path:
+        """Write a self-describing checkpoint atomically (a crash never leaves a partial file)."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        desc = self.description()
+        desc["metadata"].update(extra_metadata)
+        payload = {
+            "format": CHECKPOINT_FORMAT,
+            "version": CHECKPOINT_VERSION,
+            "config": desc,
+            "state_dict": {k: v.detach().cpu() for k, v in self.discriminators.state_dict().items()},
+        }
+        fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
+        os.close(fd)
+        try:
+            torch.save(payload, tmp)
+            os.replace(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+        return path
+
+    @classmethod
+    def from_checkpoint(cls, path: str | os.PathLike, map_location: str | torch.device = "cpu") -> "DrSReward":
+        """Load a reward saved by :meth:`save`; raises :class:`RewardCheckpointError` with the cause."""
+        path = Path(path)
+        if not path.is_file():
+            raise RewardCheckpointError(f"reward checkpoint {path} does not exist (pass reward.checkpoint=PATH to a reward.pt written by drs-learn)")
+        try:
+            payload = torch.load(path, map_location=map_location, weights_only=True)
+        except Exception as exc:
+            raise RewardCheckpointError(f"{path} is not a readable checkpoint (corrupt or truncated?): {exc}") from exc
+        if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
+            raise RewardCheckpointError(
+                f"{path} is not a drs-torchrl reward checkpoint (format={payload.get('format') if isinstance(payload, dict) else type(payload).__name__!r}); "
+                "a policy or training-state checkpoint cannot be used as a reward"
+            )
+        if int(payload.get("version", -1)) > CHECKPOINT_VERSION:
+            raise RewardCheckpointError(
+                f"{path} has checkpoint format version {payload['version']}, newer than this drs-torchrl "
+                f"understands ({CHECKPOINT_VERSION}); upgrade drs-torchrl"
+            )
+        c = payload["config"]
+        reward = cls(
+            c["num_stages"], c["in_keys"], c["in_shapes"], stage_key=c["stage_key"], formula=c["formula"],
+            alpha=c["alpha"], offset=c["offset"], hidden=c["hidden"], activation=c["activation"],
+            reward_key=c.get("reward_key", "reward"), metadata=c.get("metadata"),
+        )
+        try:
+            reward.discriminators.load_state_dict(payload["state_dict"])
+        except RuntimeError as exc:
+            raise RewardCheckpointError(f"{path}: discriminator weights do not match its own description: {exc}") from exc
+        return reward.to(map_location)
+
+    def check_compatible(self, observation_spec, *, num_stages: int | None = None, family: str | None = None) -> None:
+        """Raise :class:`RewardCheckpointError` naming every difference between this reward and an env."""
+        problems = []
+        mine = self.metadata.get("family")
+        if family is not None and mine is not None and mine != family:
+            problems.append(f"it was learned on task family {mine!r}, the env is family {family!r}")
+        if num_stages is not None and num_stages != self.num_stages:
+            problems.append(f"it has {self.num_stages} stages, the env's family has {num_stages}")
+        keys = set(observation_spec.keys(True, True))
+        for k, dim in self.in_shapes.items():
+            if k not in keys:
+                problems.append(f"it reads {k!r}, which the env does not produce")
+            elif int(observation_spec[k].shape[-1]) != dim:
+                problems.append(f"it reads {k!r} of size {dim}, the env's {k!r} has size {int(observation_spec[k].shape[-1])}")
+        if self.stage_key not in keys:
+            problems.append(f"it needs the stage index {self.stage_key!r} (add a StageIndicator transform)")
+        if problems:
+            raise RewardCheckpointError("the reward does not fit this environment: " + "; ".join(problems))
+
+    def __repr__(self) -> str:
+        return (f"{type(self).__name__}(num_stages={self.num_stages}, in_keys={self.reward_in_keys}, "
+                f"formula={self.formula!r}, alpha={self.alpha:.4g})")
