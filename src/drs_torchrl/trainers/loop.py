@@ -323,6 +323,10 @@ class Trainer:
         finally:
             bar.close()
         elapsed = time.perf_counter() - t0
+        if window_frames:
+            row = self._train_row(recent, sac_stats, disc_stats, rewards, window_frames, window_updates,
+                                  time.perf_counter() - t_window, t_collect, t_update)
+            self.logger.log("train", self.frames, row)
         if not interrupted and self._last_eval_frames != self.frames:
             ev = self.evaluate()
             if ev:

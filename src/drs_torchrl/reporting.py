@@ -1,0 +1,94 @@
+"""``drs-plot RUN_DIR [RUN_DIR ...]``: figures of a run from its ``train.csv`` / ``eval.csv``.
+
+One PNG per run (``<run_dir>/progress.png``, or ``--out``): per-stage reach rates and success of
+training episodes, evaluation success, discriminator accuracy per stage, reward statistics and
+env steps/s, all against env steps. Several runs given together are overlaid in one figure.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def load(run_dir: Path):
+    import pandas as pd
+
+    train = pd.read_csv(run_dir / "train.csv") if (run_dir / "train.csv").exists() else None
+    ev = pd.read_csv(run_dir / "eval.csv") if (run_dir / "eval.csv").exists() else None
+    if train is None:
+        raise FileNotFoundError(f"{run_dir} has no train.csv: is it a drs-learn/drs-reuse run directory?")
+    return train, ev
+
+
+def plot_runs(run_dirs: list[Path], out: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, 3, figsize=(16, 8.5))
+    ax_reach, ax_eval, ax_disc, ax_rew, ax_speed, ax_buf = axes.ravel()
+    for run in run_dirs:
+        train, ev = load(run)
+        tag = run.name if len(run_dirs) > 1 else ""
+        x = train["step"]
+        for c in sorted(c for c in train.columns if c.startswith("reach_stage_")):
+            ax_reach.plot(x, train[c], label=f"{tag} {c.replace('reach_', '')}".strip())
+        if ev is not None:
+            ax_eval.plot(ev["step"], ev["success_rate"], marker="o", label=f"{tag} eval success".strip())
+            for c in sorted(c for c in ev.columns if c.startswith("reach_stage_")):
+                ax_eval.plot(ev["step"], ev[c], ls="--", alpha=0.6, label=f"{tag} eval {c.replace('reach_', '')}".strip())
+        for c in sorted(c for c in train.columns if c.startswith("disc_accuracy_")):
+            ax_disc.plot(x, train[c], label=f"{tag} D_{c.rsplit('_', 1)[1]}".strip())
+        if "reward_mean" in train:
+            ax_rew.plot(x, train["reward_mean"], label=f"{tag} mean".strip())
+            ax_rew.fill_between(x, train["reward_min"], train["reward_max"], alpha=0.15)
+        ax_speed.plot(x, train["env_steps_per_s"], label=f"{tag} env steps/s".strip())
+        if "updates_per_s" in train:
+            ax_speed.plot(x, train["updates_per_s"], ls="--", label=f"{tag} updates/s".strip())
+        for c in sorted(c for c in train.columns if c.startswith("stage_buffer_")):
+            ax_buf.plot(x, train[c], label=f"{tag} B_{c.rsplit('_', 1)[1]}".strip())
+    titles = [
+        ("training episodes reaching stage k (rolling)", "rate", (0, 1.02)),
+        ("evaluation (deterministic policy)", "rate", (0, 1.02)),
+        ("discriminator accuracy per stage", "accuracy", (0.4, 1.02)),
+        ("reward on SAC batches (mean, min-max)", "reward", None),
+        ("throughput", "per second", None),
+        ("stage buffers (transitions)", "transitions", None),
+    ]
+    for ax, (t, yl, ylim) in zip(axes.ravel(), titles):
+        ax.set_title(t, fontsize=10)
+        ax.set_xlabel("env steps")
+        ax.set_ylabel(yl)
+        if ylim:
+            ax.set_ylim(*ylim)
+        ax.grid(alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7)
+    if ax_buf.get_lines():
+        ax_buf.set_yscale("symlog")
+    fig.suptitle(", ".join(str(r) for r in run_dirs), fontsize=9)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="drs-plot", description="plot drs-torchrl runs")
+    p.add_argument("runs", nargs="+", type=Path)
+    p.add_argument("--out", type=Path, default=None)
+    a = p.parse_args(argv)
+    try:
+        out = plot_runs(a.runs, a.out or a.runs[0] / "progress.png")
+    except FileNotFoundError as exc:
+        print(f"drs-plot: error: {exc}", file=sys.stderr)
+        return 2
+    print(out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

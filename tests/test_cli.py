@@ -1,0 +1,111 @@
+"""drs-learn and drs-reuse through their console scripts, on real ManiSkill at tiny budgets."""
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from drs_torchrl.transforms import DrSReward
+
+pytestmark = [pytest.mark.sim, pytest.mark.slow]
+
+BIN = Path(sys.executable).parent
+TINY = [
+    "total_frames=640", "algo.learning_starts=256", "algo.batch_size=64", "algo.hidden=[32,32]",
+    "logger.interval=256", "eval.interval=512", "eval.episodes=1", "checkpoint_interval=512",
+    "logger.progress_bar=false", "logger.tensorboard=false",
+]
+DISC = ["reward.disc.batch_size=32"]
+
+
+def run(cmd, *args, cwd):
+    env = dict(os.environ, PYTHONWARNINGS="ignore")
+    return subprocess.run([str(BIN / cmd), *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
+
+
+@pytest.fixture(scope="module")
+def learned(tmp_path_factory):
+    d = tmp_path_factory.mktemp("learn")
+    # a wide placement threshold makes "placed" trajectories likely even under random actions
+    p = run("drs-learn", *TINY, *DISC, "logger.tensorboard=true", "+env.variant_overrides.goal_thresh=0.08",
+            f"hydra.run.dir={d}", "seed=1", cwd=d)
+    assert p.returncode == 0, p.stderr[-3000:]
+    return d
+
+
+def test_learn_writes_reward_policy_logs_and_config(learned):
+    assert (learned / "checkpoints" / "reward.pt").is_file()
+    assert (learned / "checkpoints" / "policy.pt").is_file()
+    assert (learned / "config.yaml").is_file()
+    assert list((learned / "tb").glob("events.*"))
+    rows = list(csv.DictReader((learned / "train.csv").open()))
+    assert int(rows[-1]["frames"].split(".")[0]) >= 640
+    for col in ("success_rate", "reach_stage_1", "reach_stage_3", "env_steps_per_s", "updates_per_s", "stage_buffer_0", "reward_mean"):
+        assert col in rows[-1], col
+    summary = json.loads((learned / "summary.json").read_text())
+    assert summary["frames"] >= 640 and summary["updates"] > 0
+    eps = summary["stage_buffer_episodes"]
+    assert sum(eps) >= 10
+    # a discriminator trains iff it has trajectories on both sides of its stage
+    trainable = any(sum(eps[: k + 1]) > 0 and sum(eps[k + 1 :]) > 0 for k in range(3))
+    assert (summary["disc_updates"] > 0) == trainable, eps
+    reward = DrSReward.from_checkpoint(learned / "checkpoints" / "reward.pt")
+    assert reward.metadata["family"] == "pick_cube" and reward.num_stages == 3
+    assert reward.in_shapes == {"observation": 42, "stage_indicators": 3}
+
+
+def test_reuse_loads_the_learned_reward_on_the_test_variant_and_trains(learned, tmp_path):
+    ck = learned / "checkpoints" / "reward.pt"
+    p = run("drs-reuse", *TINY, "reward=drs", f"reward.checkpoint={ck}", f"hydra.run.dir={tmp_path}", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr[-3000:]
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["updates"] > 0
+    cfg = (tmp_path / "config.yaml").read_text()
+    assert "split: test" in cfg
+    # the rewards SAC trained on come from the frozen learned reward: rescaled range is [-2-1/9, -1]
+    rows = list(csv.DictReader((tmp_path / "train.csv").open()))
+    r = [float(x["reward_min"]) for x in rows if x.get("reward_min")]
+    assert r and min(r) >= -2 - 1 / 9 - 1e-4
+    assert (tmp_path / "checkpoints" / "policy.pt").is_file()
+
+
+@pytest.mark.parametrize("baseline", ["semi_sparse", "dense"])
+def test_reuse_with_baseline_rewards(baseline, tmp_path):
+    p = run("drs-reuse", *TINY, f"reward={baseline}", "total_frames=384", f"hydra.run.dir={tmp_path}", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr[-3000:]
+    rows = list(csv.DictReader((tmp_path / "train.csv").open()))
+    r = [float(x["reward_max"]) for x in rows if x.get("reward_max")]
+    if baseline == "semi_sparse":
+        assert r and max(r) <= 0.0  # k - N
+    else:
+        assert r and 0.0 <= max(r) <= 1.0  # ManiSkill's normalized dense reward
+
+
+def test_reuse_rejects_a_checkpoint_that_does_not_fit(learned, tmp_path):
+    r = DrSReward.from_checkpoint(learned / "checkpoints" / "reward.pt")
+    wrong = DrSReward(3, ["observation"], {"observation": 40}, metadata={"family": "pick_cube"})
+    wrong.save(tmp_path / "wrong.pt")
+    p = run("drs-reuse", *TINY, f"reward.checkpoint={tmp_path / 'wrong.pt'}", f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path)
+    assert p.returncode == 2
+    assert "size 40" in p.stderr and "size 42" in p.stderr
+    assert not (tmp_path / "run" / "checkpoints" / "policy.pt").exists()
+    assert r.num_stages == 3
+
+
+def test_reuse_without_checkpoint_and_bad_values_fail_clearly(tmp_path):
+    p = run("drs-reuse", *TINY, f"hydra.run.dir={tmp_path / 'a'}", cwd=tmp_path)
+    assert p.returncode == 2 and "reward.checkpoint=PATH" in p.stderr
+    p = run("drs-learn", *TINY, "total_frames=-5", f"hydra.run.dir={tmp_path / 'b'}", cwd=tmp_path)
+    assert p.returncode == 2 and "total_frames must be > 0" in p.stderr
+    p = run("drs-learn", *TINY, "reward.alpha=0.6", f"hydra.run.dir={tmp_path / 'c'}", cwd=tmp_path)
+    assert p.returncode == 2 and "alpha=0.6 breaks the stage ordering" in p.stderr
+    p = run("drs-learn", *TINY, "env.family=nope", f"hydra.run.dir={tmp_path / 'd'}", cwd=tmp_path)
+    assert p.returncode == 2 and "unknown task family 'nope'" in p.stderr
+    p = run("drs-learn", *TINY, "algo.batchsize=3", f"hydra.run.dir={tmp_path / 'e'}", cwd=tmp_path)
+    assert p.returncode != 0 and "batchsize" in p.stderr
+    p = run("drs-learn", *TINY, "env.split=cube_9cm", f"hydra.run.dir={tmp_path / 'f'}", cwd=tmp_path)
+    assert p.returncode == 2 and "no variant 'cube_9cm'" in p.stderr

@@ -1,0 +1,92 @@
+"""The ManiSkill3 -> TorchRL env on the real simulator (SAPIEN, software Vulkan on CPU)."""
+import pytest
+import torch
+from torchrl.envs.utils import check_env_specs
+
+from drs_torchrl.envs import ManiSkillEnv, make_family_env
+from drs_torchrl.transforms import DrSReward
+
+pytestmark = pytest.mark.sim
+
+
+@pytest.fixture(scope="module")
+def env(pick_cube):
+    e = make_family_env(pick_cube, "train", seed=0)
+    yield e
+    e.close()
+
+
+def test_specs_pass_and_indicators_reach_the_tensordict(env, pick_cube):
+    check_env_specs(env)
+    td = env.rollout(5)
+    for k in (*pick_cube.stage_keys, "stage", "stage_indicators"):
+        assert ("next", k) in td.keys(True)
+    assert td["next", "observation"].shape == (5, 42)
+    assert td["action"].shape == (5, 4)
+    assert td["next", "stage"].dtype == torch.int64
+
+
+def test_specs_pass_with_the_learned_reward_and_semi_sparse_reward(pick_cube):
+    e = make_family_env(pick_cube, "test", semi_sparse_reward=True, seed=1)
+    try:
+        check_env_specs(e)
+        td = e.rollout(3)
+        assert torch.equal(td["next", "reward"], td["next", "stage"].float() - 3)
+        r = DrSReward.from_spec(e.observation_spec, 3, ["observation", "stage_indicators"])
+        e.append_transform(r)
+        check_env_specs(e)
+        td = e.rollout(3)
+        assert torch.allclose(td["next", "reward"], r.reward(td["next"]))
+    finally:
+        e.close()
+
+
+def test_variants_change_the_object(pick_cube):
+    small = make_family_env(pick_cube, "cube_1_5cm", seed=0)
+    over = make_family_env(pick_cube, "train", variant_overrides={"cube_half_size": 0.03}, seed=0)
+    try:
+        assert small.base_env.unwrapped.cube_half_size == pytest.approx(0.015)
+        assert over.base_env.unwrapped.cube_half_size == pytest.approx(0.03)
+        # the cube rests on the table: its height is its half size
+        z = small.reset()["observation"]
+        assert z.shape == (42,)
+    finally:
+        small.close()
+        over.close()
+
+
+def test_same_seed_same_first_observation(pick_cube):
+    a = make_family_env(pick_cube, "train", seed=7)
+    b = make_family_env(pick_cube, "train", seed=7)
+    try:
+        assert torch.equal(a.reset()["observation"], b.reset()["observation"])
+    finally:
+        a.close()
+        b.close()
+
+
+def test_unknown_indicator_key_is_reported():
+    with pytest.raises(KeyError, match="is_lifted"):
+        ManiSkillEnv("PickCube-v1", ["is_lifted"])
+
+
+def test_gpu_backend_without_cuda_is_reported():
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA; the error path only exists without it")
+    with pytest.raises(RuntimeError, match="CUDA is not available"):
+        ManiSkillEnv("PickCube-v1", ["success"], sim_backend="physx_cuda", num_envs=4)
+
+
+def test_several_cpu_envs_need_batched_envs():
+    with pytest.raises(ValueError, match="SerialEnv"):
+        ManiSkillEnv("PickCube-v1", ["success"], num_envs=2)
+
+
+def test_missing_asset_fails_fast_with_download_command():
+    from drs_torchrl.envs import MissingAssetError
+    from drs_torchrl.envs.doctor import missing_assets
+
+    if not missing_assets("PickSingleYCB-v1"):
+        pytest.skip("the YCB assets are downloaded on this machine")
+    with pytest.raises(MissingAssetError, match="mani_skill.utils.download_asset PickSingleYCB-v1"):
+        ManiSkillEnv("PickSingleYCB-v1", ["success"])

@@ -1,0 +1,129 @@
+"""Trajectory filing and truncation, the StageSampler's split and proportions, assembly."""
+import numpy as np
+import pytest
+import torch
+from tensordict import TensorDict
+
+from drs_torchrl.data import TRAJ_STAGE_KEY, StageBuffers, TrajectoryAssembler, truncate_failed
+
+N = 3
+OBS = 4
+
+
+def traj(stages, offset=0.0):
+    T = len(stages)
+    nxt = TensorDict(
+        {
+            "observation": torch.arange(T, dtype=torch.float32)[:, None].expand(T, OBS) + offset,
+            "stage": torch.tensor(stages)[:, None],
+            "done": torch.zeros(T, 1, dtype=torch.bool),
+        },
+        batch_size=[T],
+    )
+    nxt["done"][-1] = True
+    return TensorDict({"observation": torch.zeros(T, OBS), "next": nxt}, batch_size=[T])
+
+
+def test_truncation_rule():
+    assert truncate_failed(torch.tensor([0, 1, 1, 0, 0]), N) == 3
+    assert truncate_failed(torch.tensor([0, 2, 1, 2, 1, 0]), N) == 4
+    assert truncate_failed(torch.tensor([0, 0, 0]), N) == 3
+    assert truncate_failed(torch.tensor([0, 1, 3, 2]), N) == 4  # success: whole
+
+
+def test_filing_by_highest_stage_with_truncation():
+    sb = StageBuffers(N, ["observation"], capacity=1000)
+    assert sb.add_trajectory(traj([0, 1, 1, 0, 0])) == 1
+    assert sb.add_trajectory(traj([0, 0, 0, 0])) == 0
+    assert sb.add_trajectory(traj([0, 1, 2, 3])) == 3
+    assert sb.add_trajectory(traj([0, 0, 1, 0]), demo=True) == 3  # demos: top, whole
+    assert sb.stage_counts().tolist() == [4, 3, 0, 8]
+    assert sb.episodes_per_stage.tolist() == [1, 1, 0, 2]
+    stored = sb.storage[: len(sb)]
+    # the stage-1 failure kept steps 0..2 (last step at stage 1 is index 2)
+    s1 = stored[stored[TRAJ_STAGE_KEY] == 1]
+    assert s1["observation"][:, 0].tolist() == [0.0, 1.0, 2.0]
+
+
+def test_positives_and_negatives_respect_stage_split():
+    sb = StageBuffers(N, ["observation"], capacity=10_000, batch_size=64)
+    for k, stages in enumerate([[0] * 5, [0, 1, 1], [1, 2, 2, 2], [1, 2, 3]]):
+        for _ in range(3):
+            sb.add_trajectory(traj(stages))
+    batch = sb.sample_discriminator_batch()
+    assert batch.shape == (N, 2, 64)
+    ts = batch[TRAJ_STAGE_KEY]
+    for k in range(N):
+        assert (ts[k, 0] <= k).all() and (ts[k, 1] > k).all()
+    assert (batch["label"][:, 0] == 0).all() and (batch["label"][:, 1] == 1).all()
+    assert batch["valid"].all()
+
+
+def test_sampling_is_proportional_to_stage_sizes():
+    sb = StageBuffers(N, ["observation"], capacity=100_000, batch_size=20_000)
+    sizes = {0: 1000, 1: 3000, 2: 500, 3: 1500}
+    for s, n in sizes.items():
+        stages = [s] * n
+        sb.add_trajectory(traj(stages) if s == N else traj(stages))
+    batch = sb.sample_discriminator_batch()
+    ts = batch[TRAJ_STAGE_KEY]
+    for k in range(N):
+        neg = ts[k, 0].reshape(-1).numpy()
+        pos = ts[k, 1].reshape(-1).numpy()
+        neg_total = sum(sizes[j] for j in range(k + 1))
+        pos_total = sum(sizes[j] for j in range(k + 1, N + 1))
+        for j in range(k + 1):
+            assert np.mean(neg == j) == pytest.approx(sizes[j] / neg_total, abs=0.02)
+        for j in range(k + 1, N + 1):
+            assert np.mean(pos == j) == pytest.approx(sizes[j] / pos_total, abs=0.02)
+
+
+def test_discriminator_without_positives_is_marked_invalid():
+    sb = StageBuffers(N, ["observation"], capacity=100, batch_size=8)
+    sb.add_trajectory(traj([0, 0, 0]))
+    sb.add_trajectory(traj([0, 1, 0]))
+    assert sb.valid_discriminators().tolist() == [True, False, False]
+    assert sb.sample_discriminator_batch()["valid"][:, 0, 0, 0].tolist() == [True, False, False]
+
+
+def test_overwritten_slots_leave_their_old_stage():
+    sb = StageBuffers(N, ["observation"], capacity=10, batch_size=4)
+    sb.add_trajectory(traj([3] * 6))
+    sb.add_trajectory(traj([0] * 4))
+    assert sb.stage_counts().tolist() == [4, 0, 0, 6]
+    sb.add_trajectory(traj([1] * 5))  # overwrites 5 of the oldest (stage-3) slots
+    assert sb.stage_counts().tolist() == [4, 5, 0, 1]
+    assert len(sb) == 10
+    stored = sb.storage[:10][TRAJ_STAGE_KEY]
+    assert sorted(stored.tolist()) == [0] * 4 + [1] * 5 + [3]
+    batch = sb.sample_discriminator_batch()
+    assert (batch[TRAJ_STAGE_KEY][2, 1] == 3).all()  # the one stage-3 slot left
+
+
+def test_state_dict_round_trip():
+    sb = StageBuffers(N, ["observation"], capacity=100, batch_size=8)
+    sb.add_trajectory(traj([0, 1, 1]))
+    sb.add_trajectory(traj([0, 2, 3]))
+    sb2 = StageBuffers(N, ["observation"], capacity=100, batch_size=8)
+    sb2.load_state_dict(sb.state_dict())
+    assert sb2.stage_counts().tolist() == sb.stage_counts().tolist()
+    assert sb2.episodes_per_stage.tolist() == [0, 1, 0, 1]
+    assert torch.equal(sb2.storage[: len(sb2)]["observation"], sb.storage[: len(sb)]["observation"])
+
+
+def test_assembler_joins_episodes_across_batches_per_env():
+    asm = TrajectoryAssembler()
+
+    def batch(done_rows):
+        d = torch.tensor(done_rows, dtype=torch.bool)[..., None]
+        step = torch.arange(d.shape[-2], dtype=torch.float32).expand(d.shape[:-1])[..., None]
+        return TensorDict({"t": step, "next": {"done": d}}, batch_size=d.shape[:-1])
+
+    assert asm.add(batch([0, 0, 0])) == []
+    eps = asm.add(batch([0, 1, 0]))
+    assert [e.shape[0] for e in eps] == [5]
+    eps = asm.add(batch([1, 0, 1]))
+    assert [e.shape[0] for e in eps] == [2, 2]
+    # two envs, batch shape (2, T)
+    eps = asm.add(batch([[0, 1, 0, 0], [1, 0, 0, 1]]))
+    assert [e.shape[0] for e in eps] == [2, 1, 3]
