@@ -109,3 +109,12 @@ def test_reuse_without_checkpoint_and_bad_values_fail_clearly(tmp_path):
     assert p.returncode != 0 and "batchsize" in p.stderr
     p = run("drs-learn", *TINY, "env.split=cube_9cm", f"hydra.run.dir={tmp_path / 'f'}", cwd=tmp_path)
     assert p.returncode == 2 and "no variant 'cube_9cm'" in p.stderr
+
+
+def test_learn_with_two_cpu_envs(tmp_path):
+    p = run("drs-learn", *TINY, *DISC, "env.num_envs=2", "total_frames=384", "algo.learning_starts=128",
+            f"hydra.run.dir={tmp_path}", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr[-3000:]
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    # 384 steps over two envs of 50-step episodes: both envs' episodes are filed
+    assert summary["frames"] == 384 and sum(summary["stage_buffer_episodes"]) >= 6

@@ -90,3 +90,15 @@ def test_missing_asset_fails_fast_with_download_command():
         pytest.skip("the YCB assets are downloaded on this machine")
     with pytest.raises(MissingAssetError, match="mani_skill.utils.download_asset PickSingleYCB-v1"):
         ManiSkillEnv("PickSingleYCB-v1", ["success"])
+
+
+def test_several_cpu_envs_through_torchrl_batched_env(pick_cube):
+    e = make_family_env(pick_cube, "train", num_envs=2, seed=3)
+    try:
+        assert e.batch_size == (2,)
+        check_env_specs(e)
+        td = e.rollout(4)
+        assert td["next", "stage"].shape == (2, 4, 1)
+        assert not torch.equal(td["next", "observation"][0], td["next", "observation"][1])
+    finally:
+        e.close()

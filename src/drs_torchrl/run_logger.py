@@ -13,16 +13,37 @@ from pathlib import Path
 class RunLogger:
     """Write scalars to ``<run_dir>/<stream>.csv`` and to TensorBoard under ``<stream>/<name>``."""
 
-    def __init__(self, run_dir: str | Path, tensorboard: bool = True, csv_files: bool = True):
+    def __init__(self, run_dir: str | Path, tensorboard: bool = True, csv_files: bool = True, resume_step: int | None = None):
+        """``resume_step``: continuing a run from a checkpoint at that step; rows logged after it
+        (by the interrupted process) are dropped, so the logs have neither gaps nor duplicates."""
         self.run_dir = Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
         self.csv_files = csv_files
         self._columns: dict[str, list[str]] = {}
         self._tb = None
+        if resume_step is not None:
+            for path in self.run_dir.glob("*.csv"):
+                self._truncate(path, resume_step)
         if tensorboard:
             from torch.utils.tensorboard import SummaryWriter
 
-            self._tb = SummaryWriter(str(self.run_dir / "tb"))
+            purge = None if resume_step is None else int(resume_step) + 1
+            self._tb = SummaryWriter(str(self.run_dir / "tb"), purge_step=purge)
+
+    @staticmethod
+    def _truncate(path: Path, step: int) -> None:
+        with path.open() as f:
+            reader = csv.DictReader(f)
+            cols = reader.fieldnames
+            rows = [r for r in reader if r.get("step") and float(r["step"]) <= step]
+        if cols is None:
+            return
+        tmp = path.with_suffix(".csv.tmp")
+        with tmp.open("w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=cols)
+            w.writeheader()
+            w.writerows(rows)
+        tmp.replace(path)
 
     def log(self, stream: str, step: int, scalars: dict[str, float]) -> None:
         row = {"step": int(step)}

@@ -12,6 +12,7 @@ go whole into the top buffer ``N``.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -183,10 +184,12 @@ class StageSampler(Sampler):
         self._pending = [torch.as_tensor(p) for p in state_dict.get("pending", [])]
 
     def dumps(self, path):
-        torch.save(self.state_dict(), f"{path}/stage_sampler.pt")
+        path = Path(path)
+        path.mkdir(parents=True, exist_ok=True)
+        torch.save(self.state_dict(), path / "stage_sampler.pt")
 
     def loads(self, path):
-        self.load_state_dict(torch.load(f"{path}/stage_sampler.pt", weights_only=True))
+        self.load_state_dict(torch.load(Path(path) / "stage_sampler.pt", weights_only=True))
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(num_stages={self.num_stages}, counts={self._counts.tolist()})"
@@ -216,7 +219,8 @@ class StageBuffers(ReplayBuffer):
         scratch_dir: str | None = None,
     ):
         storage = LazyMemmapStorage(capacity, scratch_dir=scratch_dir) if scratch_dir else LazyTensorStorage(capacity)
-        super().__init__(storage=storage, sampler=StageSampler(num_stages), writer=RoundRobinWriter(), batch_size=batch_size)
+        super().__init__(storage=storage, sampler=StageSampler(num_stages), writer=RoundRobinWriter())
+        self.disc_batch_size = int(batch_size)
         self.num_stages = int(num_stages)
         self.keys = list(dict.fromkeys([*keys, stage_key]))
         self.stage_key = stage_key
@@ -257,7 +261,7 @@ class StageBuffers(ReplayBuffer):
         Adds ``"label"`` (float, 1 for positives) and ``"valid"`` (whether discriminator ``k`` has data
         on both sides), both broadcast to ``(N, 2, B)``.
         """
-        B = batch_size or self._batch_size
+        B = batch_size or self.disc_batch_size
         data, info = self.sample(B, return_info=True)
         data = data.reshape(self.num_stages, 2, B)
         label = torch.zeros(self.num_stages, 2, B, 1)
@@ -265,6 +269,16 @@ class StageBuffers(ReplayBuffer):
         data.set("label", label)
         data.set("valid", info["valid"].view(-1, 1, 1, 1).expand(self.num_stages, 2, B, 1).clone())
         return data
+
+    def dumps(self, path):
+        """Write the buffers to ``path`` (TorchRL's on-disk format, memory-mapped storage)."""
+        super().dumps(path)
+        torch.save({"episodes_per_stage": torch.from_numpy(self.episodes_per_stage.copy())}, Path(path) / "stage_buffers.pt")
+
+    def loads(self, path):
+        super().loads(path)
+        extra = torch.load(Path(path) / "stage_buffers.pt", weights_only=True)
+        self.episodes_per_stage = extra["episodes_per_stage"].numpy().astype(np.int64)
 
     def state_dict(self) -> dict[str, Any]:
         sd = super().state_dict()

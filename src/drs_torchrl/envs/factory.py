@@ -1,9 +1,11 @@
 """Build the TorchRL env of a task family variant: ManiSkill env + stage labelling (+ reward)."""
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
-from torchrl.envs import TransformedEnv
+import torch
+from torchrl.envs import ParallelEnv, SerialEnv, TransformedEnv
 from torchrl.envs.transforms import Transform
 
 from drs_torchrl.envs.maniskill import ManiSkillEnv
@@ -25,22 +27,31 @@ def make_family_env(
     max_episode_steps: int | None = None,
     transforms: Sequence[Transform] = (),
     seed: int | None = None,
+    cpu_batching: str = "serial",
 ) -> TransformedEnv:
     """A :class:`~torchrl.envs.TransformedEnv` for ``variant`` of ``family``.
 
     The base env writes the family's indicators; :class:`StageIndicator` adds ``"stage"`` and
     ``"stage_indicators"``; ``transforms`` (e.g. a frozen :class:`DrSReward`) come after it.
+    ``num_envs > 1`` on the CPU backend batches that many single-env simulators with TorchRL's
+    :class:`~torchrl.envs.SerialEnv` (``cpu_batching="serial"``) or
+    :class:`~torchrl.envs.ParallelEnv` (``"parallel"``, one process each); on the GPU backend
+    ManiSkill simulates them all in one process.
     """
-    base = ManiSkillEnv(
-        family.env_id,
-        family.all_info_keys,
-        num_envs=num_envs,
-        sim_backend=sim_backend,
+    kwargs = dict(
         control_mode=control_mode or family.control_mode,
         reward_mode=reward_mode,
         max_episode_steps=max_episode_steps or family.max_episode_steps,
         env_kwargs=family.variant_kwargs(variant, variant_overrides),
     )
+    gpu = sim_backend in ("physx_cuda", "cuda", "gpu") or (sim_backend == "auto" and num_envs > 1 and torch.cuda.is_available())
+    if num_envs > 1 and not gpu:
+        # several CPU simulators: one ManiSkill env per TorchRL sub-env
+        make_one = functools.partial(ManiSkillEnv, family.env_id, family.all_info_keys, sim_backend="physx_cpu", **kwargs)
+        batched_cls = ParallelEnv if cpu_batching == "parallel" else SerialEnv
+        base = batched_cls(num_envs, make_one)
+    else:
+        base = ManiSkillEnv(family.env_id, family.all_info_keys, num_envs=num_envs, sim_backend=sim_backend, **kwargs)
     env = TransformedEnv(base, StageIndicator(
             family.stage_keys,
             semi_sparse_reward=semi_sparse_reward,

@@ -5,6 +5,8 @@ Configs live in the repository's ``conf/`` (or ``$DRS_CONF_DIR``). Examples::
     drs-learn env=pick_cube algo=sac_cpu total_frames=200000 seed=3
     drs-reuse reward=drs reward.checkpoint=runs/learn/.../checkpoints/reward.pt env.split=test
     drs-reuse reward=dense env.split=test
+    drs-learn resume=runs/learn/pick_cube/drs/<run>          # continue an interrupted run
+    drs-learn resume=runs/learn/pick_cube/drs/<run> total_frames=2000000   # ... and extend it
 """
 from __future__ import annotations
 
@@ -13,8 +15,53 @@ import sys
 from pathlib import Path
 
 import hydra
+import yaml
 from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
+
+GROUPS = ("env", "reward", "algo", "logger")
+
+
+def _run_dir_resolver(resume, default):
+    return str(resume) if resume else default
+
+
+def _hydra_subdir_resolver(resume):
+    if not resume:
+        return ".hydra"
+    from datetime import datetime
+
+    return ".hydra-resume-" + datetime.now().strftime("%Y%m%d-%H%M%S")
+
+
+OmegaConf.register_new_resolver("drs_run_dir", _run_dir_resolver, replace=True)
+OmegaConf.register_new_resolver("drs_hydra_subdir", _hydra_subdir_resolver, replace=True)
+
+
+class ResumeError(ValueError):
+    """``resume=RUN_DIR`` that cannot be honoured."""
+
+
+def resume_config(run_dir: Path, phase: str, overrides: list[str]) -> DictConfig:
+    """The saved config of ``run_dir`` with this invocation's value overrides applied on top."""
+    saved_path = run_dir / "config.yaml"
+    if not saved_path.is_file():
+        raise ResumeError(f"cannot resume: {run_dir} is not a drs-torchrl run directory (no config.yaml)")
+    saved = OmegaConf.load(saved_path)
+    if saved.get("phase") != phase:
+        raise ResumeError(f"{run_dir} is a drs-{saved.get('phase')} run; resume it with drs-{saved.get('phase')}")
+    for o in overrides:
+        key, _, value = o.partition("=")
+        key = key.lstrip("+~")
+        if key == "resume" or key.startswith("hydra."):
+            continue
+        if key in GROUPS:
+            raise ResumeError(f"cannot switch config group {key!r} of a run being resumed; start a new run instead")
+        if OmegaConf.select(saved, key, default="__missing__") == "__missing__":
+            raise ResumeError(f"override {key!r} does not exist in the config of {run_dir}")
+        OmegaConf.update(saved, key, yaml.safe_load(value), merge=True)
+    saved.resume = str(run_dir)
+    return saved
 
 
 def conf_dir() -> str:
@@ -31,17 +78,27 @@ def conf_dir() -> str:
 def _run(cfg: DictConfig, phase: str) -> None:
     from drs_torchrl.envs.doctor import MissingAssetError, VulkanUnavailableError
     from drs_torchrl.tasks import get_family
-    from drs_torchrl.trainers.loop import ConfigError, train
+    from drs_torchrl.trainers.loop import ConfigError, NonFiniteError, TrainingStateError, train
     from drs_torchrl.transforms.reward import RewardCheckpointError
 
     run_dir = HydraConfig.get().runtime.output_dir
     try:
+        resume = bool(cfg.get("resume"))
+        if resume:
+            run_dir = str(Path(cfg.resume))
+            cfg = resume_config(Path(run_dir), phase, list(HydraConfig.get().overrides.task))
         get_family(cfg.env.family)
-        summary = train(cfg, phase, run_dir)
-    except (ConfigError, RewardCheckpointError, MissingAssetError, VulkanUnavailableError, KeyError, ValueError) as exc:
+        summary = train(cfg, phase, run_dir, resume=resume)
+    except (ConfigError, RewardCheckpointError, MissingAssetError, VulkanUnavailableError, TrainingStateError,
+            ResumeError, KeyError, ValueError) as exc:
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
         print(f"drs-{phase}: error: {msg}", file=sys.stderr)
         sys.exit(2)
+    except NonFiniteError as exc:
+        print(f"drs-{phase}: stopped: {exc}", file=sys.stderr)
+        sys.exit(3)
+    if summary.get("interrupted"):
+        print(f"drs-{phase}: interrupted at {summary['frames']} env steps; continue with: drs-{phase} resume={run_dir}")
     ev = summary.get("last_eval", {})
     print(
         f"drs-{phase}: {summary['frames']} env steps, {summary['updates']} SAC updates in "

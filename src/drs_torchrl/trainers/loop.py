@@ -10,8 +10,10 @@ their own modules and are usable without it.
 from __future__ import annotations
 
 import json
-import math
+import os
 import random
+import shutil
+import signal
 import time
 from collections import deque
 from pathlib import Path
@@ -28,6 +30,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm.auto import tqdm
 
 from drs_torchrl.data import StageBuffers, TrajectoryAssembler
+from drs_torchrl.data.persistence import dump_buffer, load_buffer
 from drs_torchrl.envs.factory import make_family_env
 from drs_torchrl.models import make_sac_modules
 from drs_torchrl.objectives import DiscriminatorLoss
@@ -73,27 +76,35 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-def _episode_stats(episodes, num_stages: int, reward_fn) -> dict[str, float]:
-    stages = torch.tensor([int(ep["next", "stage"].max()) for ep in episodes], dtype=torch.float32)
+def episode_summary(ep, reward_fn) -> tuple[int, bool, int, float]:
+    """(highest stage, success, length, return) of one finished episode."""
+    return (int(ep["next", "stage"].max()), bool(ep["next", "success"].any()), int(ep.shape[0]), float(reward_fn(ep).sum()))
+
+
+def aggregate_episodes(summaries, num_stages: int) -> dict[str, float]:
+    """Success rate, per-stage reach rates ("reached stage >= k"), mean length and return."""
+    arr = np.asarray(summaries, dtype=np.float64).reshape(-1, 4)
     out = {
-        "episodes": float(len(episodes)),
-        "success_rate": float(np.mean([bool(ep["next", "success"].any()) for ep in episodes])),
-        "episode_length": float(np.mean([ep.shape[0] for ep in episodes])),
-        "episode_return": float(np.mean([float(reward_fn(ep).sum()) for ep in episodes])),
+        "episodes": float(arr.shape[0]),
+        "success_rate": float(arr[:, 1].mean()),
+        "episode_length": float(arr[:, 2].mean()),
+        "episode_return": float(arr[:, 3].mean()),
     }
     for k in range(1, num_stages + 1):
-        out[f"reach_stage_{k}"] = float((stages >= k).float().mean())
+        out[f"reach_stage_{k}"] = float((arr[:, 0] >= k).mean())
     return out
 
 
 class Trainer:
     """Holds the TorchRL pieces of one run and runs Algorithm 1 over them."""
 
-    def __init__(self, cfg: DictConfig, phase: str, run_dir: str | Path):
+    def __init__(self, cfg: DictConfig, phase: str, run_dir: str | Path, *, resume: bool = False):
         validate_config(cfg, phase)
         self.cfg, self.phase, self.run_dir = cfg, phase, Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
         (self.run_dir / "checkpoints").mkdir(exist_ok=True)
+        if resume:
+            find_training_state(self.run_dir)  # fail before building anything
         OmegaConf.save(cfg, self.run_dir / "config.yaml", resolve=True)
         seed_everything(int(cfg.seed))
         self.device = torch.device("cuda" if cfg.device == "auto" and torch.cuda.is_available() else ("cpu" if cfg.device == "auto" else cfg.device))
@@ -107,11 +118,15 @@ class Trainer:
             semi_sparse_offset=reward.semi_sparse_offset,
             sim_backend=cfg.env.sim_backend,
             num_envs=cfg.env.num_envs,
+            cpu_batching=cfg.env.get("cpu_batching", "serial"),
             control_mode=cfg.env.control_mode,
             max_episode_steps=cfg.env.max_episode_steps,
         )
         self.env = make_family_env(family, cfg.env.split, seed=int(cfg.seed), **env_kwargs)
-        self.eval_env = make_family_env(family, cfg.eval.get("split") or cfg.env.split, seed=int(cfg.seed) + 10_000, **env_kwargs)
+        # evaluation runs one episode at a time in a single env
+        self.eval_env = make_family_env(
+            family, cfg.eval.get("split") or cfg.env.split, seed=int(cfg.seed) + 10_000, **{**env_kwargs, "num_envs": 1}
+        )
         if reward.frozen is not None:
             reward.frozen.check_compatible(self.env.observation_spec, num_stages=self.num_stages, family=family.name)
             self.env.append_transform(reward.frozen)
@@ -155,22 +170,22 @@ class Trainer:
             self.optim_disc = torch.optim.Adam(self.learned.discriminators.parameters(), lr=float(d.lr))
         else:
             self.stage_buffers = self.disc_loss = self.optim_disc = None
-        self.collector = Collector(
-            self.env,
-            self.actor,
-            frames_per_batch=int(a.frames_per_batch),
-            total_frames=int(cfg.total_frames),
-            init_random_frames=int(a.learning_starts),
-            device=self.device,
-            auto_register_policy_transforms=False,
-        )
+        self.collector = None  # built by run(): its budget depends on where the run starts
         self.assembler = TrajectoryAssembler()
-        self.logger = RunLogger(self.run_dir, tensorboard=cfg.logger.tensorboard, csv_files=cfg.logger.csv)
         self.frames = 0
         self.updates = 0
         self.disc_updates = 0
         self._owed_updates = 0.0
         self._last_eval_frames = -1
+        self.recent: deque = deque(maxlen=int(cfg.logger.episode_window))
+        self.resumed_from: int | None = None
+        if resume:
+            self.load_training_state()
+            self.resumed_from = self.frames
+            self.env.set_seed(int(cfg.seed) + 1 + self.frames)  # fresh episodes, not the first run's
+        self.logger = RunLogger(
+            self.run_dir, tensorboard=cfg.logger.tensorboard, csv_files=cfg.logger.csv, resume_step=self.resumed_from
+        )
 
     # ------------------------------------------------------------------ rewards
     def episode_reward(self, episode) -> torch.Tensor:
@@ -193,19 +208,6 @@ class Trainer:
             self.disc_updates += 1
         return out.detach()
 
-    def _sac_step(self) -> tuple[TensorDict, torch.Tensor]:
-        sample = self.replay.sample().to(self.device)
-        out = self.loss(sample)
-        total = out["loss_actor"] + out["loss_qvalue"] + out["loss_alpha"]
-        for opt in (self.optim_actor, self.optim_critic, self.optim_alpha):
-            opt.zero_grad(set_to_none=True)
-        total.backward()
-        for opt in (self.optim_actor, self.optim_critic, self.optim_alpha):
-            opt.step()
-        self.target_updater.step()
-        self.updates += 1
-        return out.detach(), sample.get(("next", "reward")).detach()
-
     # --------------------------------------------------------------- evaluation
     def evaluate(self) -> dict[str, float]:
         n = int(self.cfg.eval.episodes)
@@ -215,17 +217,18 @@ class Trainer:
         with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
             for _ in range(n):
                 ep = self.eval_env.rollout(10_000, self.actor, break_when_any_done=True)
-                episodes.append(ep)
-        reward_fn = (lambda ep: self.learned.reward(ep.get("next"))) if self.learned is not None else (lambda ep: ep.get(("next", "reward")))
-        return _episode_stats(episodes, self.num_stages, reward_fn)
+                while ep.batch_dims > 1:  # a GPU env with num_envs=1 has batch (1, T)
+                    ep = ep[0]
+                episodes.append(episode_summary(ep, self.episode_reward))
+        return aggregate_episodes(episodes, self.num_stages)
 
     # -------------------------------------------------------------- checkpoints
-    def save_checkpoints(self, tag: str = "latest") -> dict[str, str]:
+    def save_checkpoints(self) -> dict[str, str]:
+        """The user-facing checkpoints: the learned reward (phase 1) and the policy."""
         ck = self.run_dir / "checkpoints"
         paths = {}
         if self.learned is not None:
-            p = self.learned.save(ck / "reward.pt", frames=self.frames, phase=self.phase)
-            paths["reward"] = str(p)
+            paths["reward"] = str(self.learned.save(ck / "reward.pt", frames=self.frames, phase=self.phase))
         policy = {
             "format": POLICY_FORMAT,
             "version": 1,
@@ -236,30 +239,124 @@ class Trainer:
             "actor": self.actor.state_dict(),
             "qvalue": self.qvalue.state_dict(),
         }
-        tmp = ck / "policy.pt.tmp"
-        torch.save(policy, tmp)
-        tmp.replace(ck / "policy.pt")
+        atomic_torch_save(policy, ck / "policy.pt")
         paths["policy"] = str(ck / "policy.pt")
         return paths
 
+    def _optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        opts = {"actor": self.optim_actor, "critic": self.optim_critic, "alpha": self.optim_alpha}
+        if self.optim_disc is not None:
+            opts["discriminator"] = self.optim_disc
+        return opts
+
+    def save_training_state(self) -> Path:
+        """Everything needed to continue the run, written atomically to ``checkpoints/state``.
+
+        Networks, target networks and entropy coefficient (the SAC loss module's state), optimisers,
+        discriminators and their early-stop window, replay buffer and stage buffers (TorchRL's
+        on-disk format, memory-mapped), step counters, RNG states and recent-episode statistics.
+        A new state is written beside the old one and swapped in by renames, so a crash while
+        writing leaves the previous state usable.
+        """
+        ck = self.run_dir / "checkpoints"
+        final, tmp, old = ck / "state", ck / f"state.tmp-{os.getpid()}", ck / "state.old"
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir(parents=True)
+        payload = {
+            "format": STATE_FORMAT,
+            "version": STATE_VERSION,
+            "phase": self.phase,
+            "counters": {
+                "frames": self.frames, "updates": self.updates, "disc_updates": self.disc_updates,
+                "owed_updates": self._owed_updates, "last_eval_frames": self._last_eval_frames,
+            },
+            "loss": self.loss.state_dict(),
+            "optimizers": {k: o.state_dict() for k, o in self._optimizers().items()},
+            "reward": self.learned.state_dict() if self.learned is not None else None,
+            "disc_loss": self.disc_loss.state_dict() if self.disc_loss is not None else None,
+            "recent_episodes": list(self.recent),
+            "rng": {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()},
+        }
+        dump_buffer(self.replay, tmp / "replay")
+        if self.stage_buffers is not None:
+            dump_buffer(self.stage_buffers, tmp / "stage_buffers")
+            payload["stage_buffer_episodes"] = self.stage_buffers.episodes_per_stage.tolist()
+        torch.save(payload, tmp / "trainer.pt")
+        (tmp / "COMPLETE").write_text(str(self.frames))
+        shutil.rmtree(old, ignore_errors=True)
+        if final.exists():
+            final.rename(old)
+        tmp.rename(final)
+        shutil.rmtree(old, ignore_errors=True)
+        return final
+
+    def load_training_state(self) -> None:
+        state_dir = find_training_state(self.run_dir)
+        try:
+            payload = torch.load(state_dir / "trainer.pt", map_location="cpu", weights_only=False)
+        except Exception as exc:
+            raise TrainingStateError(f"{state_dir / 'trainer.pt'} cannot be read (corrupt?): {exc}") from exc
+        if payload.get("format") != STATE_FORMAT or int(payload.get("version", 99)) > STATE_VERSION:
+            raise TrainingStateError(f"{state_dir} was not written by this version of drs-torchrl")
+        if payload["phase"] != self.phase:
+            raise TrainingStateError(f"{self.run_dir} is a drs-{payload['phase']} run; resume it with drs-{payload['phase']}")
+        c = payload["counters"]
+        self.frames, self.updates, self.disc_updates = int(c["frames"]), int(c["updates"]), int(c["disc_updates"])
+        self._owed_updates, self._last_eval_frames = float(c["owed_updates"]), int(c["last_eval_frames"])
+        self.loss.load_state_dict(payload["loss"])
+        opts = self._optimizers()
+        for k, sd in payload["optimizers"].items():
+            opts[k].load_state_dict(sd)
+        if self.learned is not None:
+            self.learned.load_state_dict(payload["reward"])
+            self.disc_loss.load_state_dict(payload["disc_loss"])
+            load_buffer(self.stage_buffers, state_dir / "stage_buffers")
+            self.stage_buffers.episodes_per_stage = np.asarray(payload["stage_buffer_episodes"], dtype=np.int64)
+        load_buffer(self.replay, state_dir / "replay")
+        self.recent.extend(tuple(e) for e in payload["recent_episodes"])
+        torch.set_rng_state(payload["rng"]["torch"])
+        np.random.set_state(payload["rng"]["numpy"])
+        random.setstate(payload["rng"]["python"])
+
     # --------------------------------------------------------------------- run
+    def _check_finite(self, what: str, value: torch.Tensor) -> None:
+        if not bool(torch.isfinite(value).all()):
+            raise NonFiniteError(
+                f"non-finite {what} at env step {self.frames} (SAC update {self.updates}); the run stopped "
+                f"without saving, so the last good checkpoint in {self.run_dir / 'checkpoints'} is intact"
+            )
+
     def run(self) -> dict[str, Any]:
         cfg, a = self.cfg, self.cfg.algo
         total = int(cfg.total_frames)
         log_every, eval_every = int(cfg.logger.interval), int(cfg.eval.interval)
         ckpt_every = int(cfg.checkpoint_interval)
-        next_log, next_eval, next_ckpt = log_every, eval_every, ckpt_every
-        recent = deque(maxlen=int(cfg.logger.episode_window))
+        next_log = (self.frames // log_every + 1) * log_every
+        next_eval = (self.frames // eval_every + 1) * eval_every
+        next_ckpt = (self.frames // ckpt_every + 1) * ckpt_every
         sac_stats: list[TensorDict] = []
         disc_stats: list[TensorDict] = []
         rewards: list[torch.Tensor] = []
         t_collect = t_update = 0.0
         window_frames, window_updates, t_window = 0, 0, time.perf_counter()
-        summary: dict[str, Any] = {"phase": self.phase, "run_dir": str(self.run_dir)}
-        bar = tqdm(total=total, desc=f"drs-{self.phase}", unit="step", disable=not cfg.logger.progress_bar, dynamic_ncols=True)
+        summary: dict[str, Any] = {"phase": self.phase, "run_dir": str(self.run_dir), "resumed_from": self.resumed_from}
+        remaining = total - self.frames
+        if remaining > 0:
+            self.collector = Collector(
+                self.env,
+                self.actor,
+                frames_per_batch=int(a.frames_per_batch),
+                total_frames=remaining,
+                init_random_frames=max(0, int(a.learning_starts) - self.frames),
+                device=self.device,
+                auto_register_policy_transforms=False,
+            )
+        bar = tqdm(total=total, initial=self.frames, desc=f"drs-{self.phase}", unit="step",
+                   disable=not cfg.logger.progress_bar, dynamic_ncols=True)
         interrupted = False
-        t0 = time.perf_counter()
-        it = iter(self.collector)
+        t0, frames0 = time.perf_counter(), self.frames
+        it = iter(self.collector) if self.collector is not None else iter(())
+        previous_sigterm = signal.signal(signal.SIGTERM, _raise_interrupt) if _in_main_thread() else None
         try:
             while True:
                 tc = time.perf_counter()
@@ -268,13 +365,14 @@ class Trainer:
                 except StopIteration:
                     break
                 t_collect += time.perf_counter() - tc
+                self._check_finite("observations", batch.get(("next", "observation")))
                 n = batch.numel()
                 self.frames += n
                 window_frames += n
                 self.replay.extend(batch.reshape(-1))
                 episodes = self.assembler.add(batch)
                 if episodes:
-                    recent.extend(episodes)
+                    self.recent.extend(episode_summary(ep, self.episode_reward) for ep in episodes)
                     if self.stage_buffers is not None:
                         stages = [self.stage_buffers.add_trajectory(ep) for ep in episodes]
                         self.disc_loss.record_episodes(stages)
@@ -298,53 +396,76 @@ class Trainer:
                 bar.update(n)
 
                 if self.frames >= next_log:
-                    next_log += log_every
+                    next_log = (self.frames // log_every + 1) * log_every
                     now = time.perf_counter()
-                    row = self._train_row(recent, sac_stats, disc_stats, rewards, window_frames, window_updates, now - t_window, t_collect, t_update)
+                    row = self._train_row(sac_stats, disc_stats, rewards, window_frames, window_updates, now - t_window, t_collect, t_update)
                     self.logger.log("train", self.frames, row)
                     bar.set_postfix(success=f"{row.get('success_rate', 0):.2f}", sps=f"{row['env_steps_per_s']:.0f}")
                     sac_stats, disc_stats, rewards = [], [], []
                     window_frames = window_updates = 0
                     t_window, t_collect, t_update = now, 0.0, 0.0
                 if self.frames >= next_eval:
-                    next_eval += eval_every
+                    next_eval = (self.frames // eval_every + 1) * eval_every
                     ev = self.evaluate()
                     self._last_eval_frames = self.frames
                     if ev:
                         self.logger.log("eval", self.frames, ev)
                         summary["last_eval"] = ev
                 if self.frames >= next_ckpt:
-                    next_ckpt += ckpt_every
+                    next_ckpt = (self.frames // ckpt_every + 1) * ckpt_every
                     self.save_checkpoints()
+                    self.save_training_state()
                     self.logger.flush()
         except KeyboardInterrupt:
             interrupted = True
-            tqdm.write(f"interrupted at {self.frames} frames: saving checkpoints in {self.run_dir / 'checkpoints'}")
+            tqdm.write(f"interrupted at {self.frames} env steps: saving the training state in {self.run_dir / 'checkpoints'}")
+        except NonFiniteError:
+            bar.close()
+            self.close()
+            raise
         finally:
             bar.close()
+            if previous_sigterm is not None:
+                signal.signal(signal.SIGTERM, previous_sigterm)
         elapsed = time.perf_counter() - t0
         if window_frames:
-            row = self._train_row(recent, sac_stats, disc_stats, rewards, window_frames, window_updates,
+            row = self._train_row(sac_stats, disc_stats, rewards, window_frames, window_updates,
                                   time.perf_counter() - t_window, t_collect, t_update)
             self.logger.log("train", self.frames, row)
         if not interrupted and self._last_eval_frames != self.frames:
             ev = self.evaluate()
+            self._last_eval_frames = self.frames
             if ev:
                 self.logger.log("eval", self.frames, ev)
                 summary["last_eval"] = ev
         summary["checkpoints"] = self.save_checkpoints()
+        self.save_training_state()
         summary.update(
             frames=self.frames, updates=self.updates, disc_updates=self.disc_updates,
-            wall_time_s=elapsed, env_steps_per_s=self.frames / max(elapsed, 1e-9), interrupted=interrupted,
+            wall_time_s=elapsed, env_steps_per_s=(self.frames - frames0) / max(elapsed, 1e-9), interrupted=interrupted,
         )
         if self.stage_buffers is not None:
             summary["stage_buffer_transitions"] = self.stage_buffers.stage_counts().tolist()
             summary["stage_buffer_episodes"] = self.stage_buffers.episodes_per_stage.tolist()
-        (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+        atomic_write_text(self.run_dir / "summary.json", json.dumps(summary, indent=2))
         self.close()
         return summary
 
-    def _train_row(self, recent, sac_stats, disc_stats, rewards, frames, updates, dt, t_collect, t_update) -> dict[str, float]:
+    def _sac_step(self) -> tuple[TensorDict, torch.Tensor]:
+        sample = self.replay.sample().to(self.device)
+        out = self.loss(sample)
+        total = out["loss_actor"] + out["loss_qvalue"] + out["loss_alpha"]
+        self._check_finite("SAC loss", total.detach())
+        for opt in (self.optim_actor, self.optim_critic, self.optim_alpha):
+            opt.zero_grad(set_to_none=True)
+        total.backward()
+        for opt in (self.optim_actor, self.optim_critic, self.optim_alpha):
+            opt.step()
+        self.target_updater.step()
+        self.updates += 1
+        return out.detach(), sample.get(("next", "reward")).detach()
+
+    def _train_row(self, sac_stats, disc_stats, rewards, frames, updates, dt, t_collect, t_update) -> dict[str, float]:
         row: dict[str, float] = {
             "frames": float(self.frames),
             "updates": float(self.updates),
@@ -352,40 +473,88 @@ class Trainer:
             "updates_per_s": updates / max(t_update, 1e-9) if updates else 0.0,
             "collect_steps_per_s": frames / max(t_collect, 1e-9),
         }
-        if recent:
-            row.update(_episode_stats(list(recent), self.num_stages, self.episode_reward))
+        if self.recent:
+            row.update(aggregate_episodes(list(self.recent), self.num_stages))
         if sac_stats:
             st = torch.stack([s.select("loss_actor", "loss_qvalue", "loss_alpha", "alpha", "entropy") for s in sac_stats])
             for k in st.keys():
                 row[k] = float(st[k].float().mean())
         if rewards:
             r = torch.cat(rewards)
+            self._check_finite("rewards", r)
             row.update(reward_mean=float(r.mean()), reward_std=float(r.std()), reward_min=float(r.min()), reward_max=float(r.max()))
         if disc_stats:
             st = torch.stack(disc_stats)
             for k in st.keys():
                 row[f"disc_{k}"] = float(st[k].float().mean())
         if self.stage_buffers is not None:
-            counts = self.stage_buffers.stage_counts()
-            for s, c in enumerate(counts):
+            for s, c in enumerate(self.stage_buffers.stage_counts()):
                 row[f"stage_buffer_{s}"] = float(c)
-            rates = self.disc_loss.beyond_rates()
-            for k, v in enumerate(rates.tolist()):
+            for k, v in enumerate(self.disc_loss.beyond_rates().tolist()):
                 row[f"beyond_rate_{k}"] = v
         return row
 
     def close(self) -> None:
         self.logger.close()
-        try:
-            self.collector.shutdown()
-        except Exception:
-            pass
+        if self.collector is not None:
+            try:
+                self.collector.shutdown()
+            except Exception:
+                pass
         for env in (self.env, self.eval_env):
             if not env.is_closed:
                 env.close()
 
 
-def train(cfg: DictConfig, phase: str, run_dir: str | Path) -> dict[str, Any]:
-    """Run one phase with the Hydra config ``cfg``; returns the run summary."""
-    trainer = Trainer(cfg, phase, run_dir)
+class TrainingStateError(RuntimeError):
+    """A run directory whose training state cannot be resumed."""
+
+
+class NonFiniteError(RuntimeError):
+    """NaN or inf in observations, rewards or losses."""
+
+
+STATE_FORMAT = "drs-torchrl/training-state"
+STATE_VERSION = 1
+
+
+def find_training_state(run_dir: Path) -> Path:
+    """The newest complete training state of ``run_dir`` (``state``, else ``state.old``)."""
+    ck = Path(run_dir) / "checkpoints"
+    for name in ("state", "state.old"):
+        if (ck / name / "COMPLETE").is_file():
+            return ck / name
+    if not Path(run_dir).is_dir():
+        raise TrainingStateError(f"cannot resume: {run_dir} does not exist")
+    raise TrainingStateError(
+        f"cannot resume: {run_dir} has no complete training state in checkpoints/ (a run saves one every "
+        "checkpoint_interval env steps and when it is interrupted)"
+    )
+
+
+def atomic_torch_save(obj, path: Path) -> None:
+    tmp = path.with_name(path.name + f".tmp-{os.getpid()}")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + f".tmp-{os.getpid()}")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def _raise_interrupt(signum, frame):
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+def _in_main_thread() -> bool:
+    import threading
+
+    return threading.current_thread() is threading.main_thread()
+
+
+def train(cfg: DictConfig, phase: str, run_dir: str | Path, *, resume: bool = False) -> dict[str, Any]:
+    """Run (or, with ``resume=True``, continue) one phase with the Hydra config ``cfg``."""
+    trainer = Trainer(cfg, phase, run_dir, resume=resume)
     return trainer.run()

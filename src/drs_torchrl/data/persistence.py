@@ -1,0 +1,58 @@
+"""Compact on-disk snapshots of replay buffers (for resuming runs).
+
+TorchRL's ``ReplayBuffer.dumps`` writes a lazily allocated storage at its full capacity (a 2M-slot
+buffer holding 1k transitions takes over a gigabyte). :func:`dump_buffer` writes only the filled
+slots, oldest first, as a memory-mapped TensorDict (one file per entry, nothing loaded whole in
+memory to write it); :func:`load_buffer` refills an empty buffer of the same layout from it, so the
+restored buffer holds the same transitions in the same age order and overwrites the oldest first.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import torch
+from tensordict import TensorDict
+from torchrl.data import ReplayBuffer
+
+
+def _filled(rb: ReplayBuffer):
+    storage = rb.storage
+    n = len(storage)
+    if n == 0:
+        return []
+    data = storage._storage  # the TensorDict behind LazyTensorStorage / LazyMemmapStorage
+    cursor = int(getattr(rb._writer, "_cursor", n)) % storage.max_size
+    if n < storage.max_size or cursor == 0:
+        return [data[:n]]
+    return [data[cursor:], data[:cursor]]  # full and wrapped: oldest first
+
+
+def dump_buffer(rb: ReplayBuffer, path: str | Path) -> dict:
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    parts = _filled(rb)
+    for i, part in enumerate(parts):
+        part.memmap(path / f"part{i}", num_threads=0)
+    meta = {"parts": len(parts), "len": len(rb), "capacity": rb.storage.max_size,
+            "write_count": int(getattr(rb._writer, "_write_count", len(rb)))}
+    (path / "meta.json").write_text(json.dumps(meta))
+    sampler_state = rb._sampler.state_dict() if hasattr(rb._sampler, "state_dict") else {}
+    if sampler_state and not hasattr(rb._sampler, "num_stages"):  # StageSampler is rebuilt by extend
+        torch.save(sampler_state, path / "sampler.pt")
+    return meta
+
+
+def load_buffer(rb: ReplayBuffer, path: str | Path) -> dict:
+    path = Path(path)
+    meta = json.loads((path / "meta.json").read_text())
+    if len(rb):
+        raise ValueError("load_buffer needs an empty buffer")
+    if meta["len"] > rb.storage.max_size:
+        raise ValueError(f"the saved buffer holds {meta['len']} transitions, more than this buffer's capacity {rb.storage.max_size}")
+    for i in range(meta["parts"]):
+        part = TensorDict.load_memmap(path / f"part{i}")
+        rb.extend(part.clone() if part.is_memmap() else part)
+    if (path / "sampler.pt").is_file():
+        rb._sampler.load_state_dict(torch.load(path / "sampler.pt", weights_only=False))
+    return meta

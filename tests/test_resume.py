@@ -1,0 +1,107 @@
+"""A real run killed mid-way (SIGKILL) resumes from its last checkpoint with the same state."""
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+pytestmark = [pytest.mark.sim, pytest.mark.slow]
+
+BIN = Path(sys.executable).parent
+TINY = [
+    "algo.learning_starts=256", "algo.batch_size=64", "algo.hidden=[32,32]", "logger.interval=256",
+    "eval.interval=100000", "eval.episodes=1", "checkpoint_interval=512", "logger.progress_bar=false",
+    "reward.disc.batch_size=32", "logger.tensorboard=false", "+env.variant_overrides.goal_thresh=0.08",
+]
+
+
+def _wait_for_state(run_dir: Path, frames: int, proc, timeout=240):
+    marker = run_dir / "checkpoints" / "state" / "COMPLETE"
+    t = time.time()
+    while time.time() - t < timeout:
+        if marker.is_file() and int(marker.read_text() or 0) >= frames:
+            return int(marker.read_text())
+        assert proc.poll() is None, proc.stderr.read()[-3000:]
+        time.sleep(0.2)
+    raise TimeoutError("no checkpoint written")
+
+
+def _steps(path: Path):
+    return [int(float(r["step"])) for r in csv.DictReader(path.open())]
+
+
+def test_sigkill_then_resume_continues_from_the_saved_step(tmp_path):
+    env = dict(os.environ, PYTHONWARNINGS="ignore")
+    run_dir = tmp_path / "run"
+    proc = subprocess.Popen([str(BIN / "drs-learn"), *TINY, "total_frames=2048", f"hydra.run.dir={run_dir}"],
+                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        _wait_for_state(run_dir, 1024, proc)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    from drs_torchrl.trainers.loop import Trainer, find_training_state
+
+    state_dir = find_training_state(run_dir)
+    saved_frames = int((state_dir / "COMPLETE").read_text())
+    payload = torch.load(state_dir / "trainer.pt", weights_only=False)
+    assert payload["counters"]["frames"] == saved_frames
+
+    # the restored trainer holds exactly what was saved
+    cfg = OmegaConf.load(run_dir / "config.yaml")
+    tr = Trainer(cfg, "learn", run_dir, resume=True)
+    try:
+        assert tr.frames == saved_frames and tr.updates == payload["counters"]["updates"]
+        assert len(tr.replay) == saved_frames  # every collected transition
+        assert tr.stage_buffers.episodes_per_stage.tolist() == payload["stage_buffer_episodes"]
+        assert 0 < len(tr.stage_buffers) <= saved_frames
+        assert torch.equal(tr.disc_loss.recent_stages, payload["disc_loss"]["recent_stages"])
+        assert tr.optim_critic.state_dict()["state"][0]["step"] == payload["counters"]["updates"]
+        assert torch.equal(tr.loss.log_alpha.detach(), payload["loss"]["log_alpha"])
+    finally:
+        tr.close()
+
+    p = subprocess.run([str(BIN / "drs-learn"), f"resume={run_dir}"], env=env, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-3000:]
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["resumed_from"] == saved_frames and summary["frames"] >= 2048
+    steps = _steps(run_dir / "train.csv")
+    assert steps == sorted(set(steps)), "duplicate or unordered log rows"
+    assert all(b - a <= 256 + 64 for a, b in zip(steps, steps[1:])), f"gap in the log: {steps}"
+    assert steps[-1] >= 2048
+    assert (run_dir / ".hydra").is_dir() and list(run_dir.glob(".hydra-resume-*"))
+
+
+def test_sigterm_saves_state_and_resume_finishes(tmp_path):
+    env = dict(os.environ, PYTHONWARNINGS="ignore")
+    run_dir = tmp_path / "run"
+    proc = subprocess.Popen([str(BIN / "drs-learn"), *TINY, "total_frames=100000", f"hydra.run.dir={run_dir}"],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    _wait_for_state(run_dir, 512, proc)
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(120)
+    assert proc.returncode == 0, err[-3000:]
+    assert f"resume={run_dir}" in out
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["interrupted"] is True
+    assert int((run_dir / "checkpoints" / "state" / "COMPLETE").read_text()) == summary["frames"]
+    p = subprocess.run([str(BIN / "drs-learn"), f"resume={run_dir}", f"total_frames={summary['frames'] + 256}"],
+                       env=env, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-3000:]
+    s2 = json.loads((run_dir / "summary.json").read_text())
+    assert s2["resumed_from"] == summary["frames"] and s2["frames"] >= summary["frames"] + 256
+
+
+def test_resume_errors_are_clear(tmp_path):
+    env = dict(os.environ, PYTHONWARNINGS="ignore")
+    p = subprocess.run([str(BIN / "drs-learn"), f"resume={tmp_path / 'nothing'}"], env=env, capture_output=True, text=True, timeout=120)
+    assert p.returncode == 2 and "not a drs-torchrl run directory" in p.stderr
