@@ -135,3 +135,12 @@ def test_bad_checkpoint_files_get_clear_errors(tmp_path):
     torch.save(payload, tmp_path / "future.pt")
     with pytest.raises(RewardCheckpointError, match="newer"):
         DrSReward.from_checkpoint(tmp_path / "future.pt")
+
+
+def test_nan_weights_are_refused(tmp_path):
+    r = make_reward()
+    with torch.no_grad():
+        r.discriminators.nets[1][0].weight[0, 0] = float("nan")
+    r.save(tmp_path / "nan.pt")
+    with pytest.raises(RewardCheckpointError, match="non-finite"):
+        DrSReward.from_checkpoint(tmp_path / "nan.pt")

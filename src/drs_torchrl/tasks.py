@@ -107,5 +107,6 @@ register_family(
         },
         train_variants=("cube_2cm", "cube_2_5cm"),
         test_variants=("cube_1_5cm", "cube_1_75cm"),
+        extra={"demo_solver": "mani_skill.examples.motionplanning.panda.solutions.pick_cube:solve"},
     )
 )

@@ -16,6 +16,43 @@ from tensordict import TensorDict
 from torchrl.data import ReplayBuffer
 
 
+class SnapshotError(ValueError):
+    """An on-disk TensorDict whose files are missing, truncated or not a TensorDict at all."""
+
+
+def load_memmap_checked(path: str | Path) -> TensorDict:
+    """``TensorDict.load_memmap`` after checking every file against its recorded shape and dtype.
+
+    ``load_memmap`` silently zero-fills a truncated file; a damaged snapshot must fail instead.
+    Nested TensorDicts (sub-directories with their own ``meta.json``) are checked recursively.
+    """
+    path = Path(path)
+    _check_memmap_dir(path)
+    return TensorDict.load_memmap(path)
+
+
+def _check_memmap_dir(path: Path) -> None:
+    meta_path = path / "meta.json"
+    if not meta_path.is_file():
+        raise SnapshotError(f"{path} is not a saved TensorDict (no meta.json)")
+    try:
+        meta = json.loads(meta_path.read_text())
+    except json.JSONDecodeError as exc:
+        raise SnapshotError(f"{meta_path} is corrupt: {exc}") from exc
+    for key, info in meta.items():
+        if not isinstance(info, dict) or "shape" not in info or "dtype" not in info:
+            continue
+        f = path / f"{key}.memmap"
+        dtype = getattr(torch, str(info["dtype"]).replace("torch.", ""))
+        expected = int(torch.Size(info["shape"]).numel()) * torch.empty((), dtype=dtype).element_size()
+        have = f.stat().st_size if f.is_file() else -1
+        if have != expected:
+            raise SnapshotError(f"{f} holds {max(have, 0)} bytes where {expected} are expected (truncated or missing)")
+    for sub in path.iterdir():
+        if sub.is_dir() and (sub / "meta.json").is_file():
+            _check_memmap_dir(sub)
+
+
 def _filled(rb: ReplayBuffer):
     storage = rb.storage
     n = len(storage)
@@ -51,7 +88,7 @@ def load_buffer(rb: ReplayBuffer, path: str | Path) -> dict:
     if meta["len"] > rb.storage.max_size:
         raise ValueError(f"the saved buffer holds {meta['len']} transitions, more than this buffer's capacity {rb.storage.max_size}")
     for i in range(meta["parts"]):
-        part = TensorDict.load_memmap(path / f"part{i}")
+        part = load_memmap_checked(path / f"part{i}")
         rb.extend(part.clone() if part.is_memmap() else part)
     if (path / "sampler.pt").is_file():
         rb._sampler.load_state_dict(torch.load(path / "sampler.pt", weights_only=False))

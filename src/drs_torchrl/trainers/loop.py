@@ -30,7 +30,8 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm.auto import tqdm
 
 from drs_torchrl.data import StageBuffers, TrajectoryAssembler
-from drs_torchrl.data.persistence import dump_buffer, load_buffer
+from drs_torchrl.data.persistence import SnapshotError, dump_buffer, load_buffer
+from drs_torchrl.demos import check_demos, load_demos
 from drs_torchrl.envs.factory import make_family_env
 from drs_torchrl.models import make_sac_modules
 from drs_torchrl.objectives import DiscriminatorLoss
@@ -168,6 +169,17 @@ class Trainer:
                 early_stop_threshold=d.early_stop_threshold, window=int(d.window),
             )
             self.optim_disc = torch.optim.Adam(self.learned.discriminators.parameters(), lr=float(d.lr))
+            demos = cfg.get("demos") or {}
+            self.num_demos = 0
+            if demos.get("path") and not resume:  # a resumed run has them in its stage-buffer snapshot
+                episodes, meta = load_demos(demos["path"])
+                check_demos(meta, family, self.learned.in_shapes, demos["path"])
+                n = len(episodes) if demos.get("num") is None else int(demos["num"])
+                if n > len(episodes):
+                    raise ConfigError(f"demos.num={n} but {demos['path']} holds only {len(episodes)} demonstrations")
+                for ep in episodes[:n]:
+                    self.stage_buffers.add_trajectory(TensorDict({"next": ep}, batch_size=ep.shape), demo=True)
+                self.num_demos = n
         else:
             self.stage_buffers = self.disc_loss = self.optim_disc = None
         self.collector = None  # built by run(): its budget depends on where the run starts
@@ -307,12 +319,15 @@ class Trainer:
         opts = self._optimizers()
         for k, sd in payload["optimizers"].items():
             opts[k].load_state_dict(sd)
-        if self.learned is not None:
-            self.learned.load_state_dict(payload["reward"])
-            self.disc_loss.load_state_dict(payload["disc_loss"])
-            load_buffer(self.stage_buffers, state_dir / "stage_buffers")
-            self.stage_buffers.episodes_per_stage = np.asarray(payload["stage_buffer_episodes"], dtype=np.int64)
-        load_buffer(self.replay, state_dir / "replay")
+        try:
+            if self.learned is not None:
+                self.learned.load_state_dict(payload["reward"])
+                self.disc_loss.load_state_dict(payload["disc_loss"])
+                load_buffer(self.stage_buffers, state_dir / "stage_buffers")
+                self.stage_buffers.episodes_per_stage = np.asarray(payload["stage_buffer_episodes"], dtype=np.int64)
+            load_buffer(self.replay, state_dir / "replay")
+        except (SnapshotError, OSError, KeyError, RuntimeError) as exc:
+            raise TrainingStateError(f"the training state in {state_dir} is damaged: {exc}") from exc
         self.recent.extend(tuple(e) for e in payload["recent_episodes"])
         torch.set_rng_state(payload["rng"]["torch"])
         np.random.set_state(payload["rng"]["numpy"])

@@ -255,6 +255,9 @@ class DrSReward(Transform):
             alpha=c["alpha"], offset=c["offset"], hidden=c["hidden"], activation=c["activation"],
             reward_key=c.get("reward_key", "reward"), metadata=c.get("metadata"),
         )
+        bad = [k for k, v in payload["state_dict"].items() if not torch.isfinite(v).all()]
+        if bad:
+            raise RewardCheckpointError(f"{path} holds non-finite (NaN/inf) discriminator weights in {bad}: it was saved from a diverged run")
         try:
             reward.discriminators.load_state_dict(payload["state_dict"])
         except RuntimeError as exc:
