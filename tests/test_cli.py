@@ -118,3 +118,22 @@ def test_learn_with_two_cpu_envs(tmp_path):
     summary = json.loads((tmp_path / "summary.json").read_text())
     # 384 steps over two envs of 50-step episodes: both envs' episodes are filed
     assert summary["frames"] == 384 and sum(summary["stage_buffer_episodes"]) >= 6
+
+
+def test_no_vulkan_device_says_how_to_install_one(tmp_path):
+    env = dict(os.environ, PYTHONWARNINGS="ignore", VK_ICD_FILENAMES=str(tmp_path / "no_driver.json"))
+    p = subprocess.run([str(BIN / "drs-learn"), *TINY, f"hydra.run.dir={tmp_path / 'run'}"], cwd=tmp_path, env=env,
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 2
+    assert "No usable Vulkan device" in p.stderr and "mesa-vulkan-drivers" in p.stderr
+    p = subprocess.run([str(BIN / "drs-doctor")], env=env, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 1 and "bookworm-backports" in p.stderr
+
+
+def test_cuda_requested_without_cuda(tmp_path):
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    p = run("drs-learn", *TINY, "device=cuda", f"hydra.run.dir={tmp_path / 'a'}", cwd=tmp_path)
+    assert p.returncode == 2 and "CUDA is not available" in p.stderr
+    p = run("drs-learn", *TINY, "env.sim_backend=physx_cuda", "env.num_envs=16", f"hydra.run.dir={tmp_path / 'b'}", cwd=tmp_path)
+    assert p.returncode == 2 and "CUDA is not available" in p.stderr

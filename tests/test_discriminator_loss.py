@@ -49,7 +49,7 @@ def test_early_stop_freezes_a_stage_that_is_passed_often():
     torch.manual_seed(0)
     sb = separable_buffers()
     reward = DrSReward(N, ["observation"], {"observation": OBS})
-    loss = DiscriminatorLoss(reward.discriminators, ["observation"], early_stop_threshold=0.95, window=20)
+    loss = DiscriminatorLoss(reward.discriminators, ["observation"], early_stop_threshold=0.95, window=20, latch=False)
     loss.record_episodes([1] * 20)  # every recent episode got beyond stage 0, none beyond stage 1
     assert loss.beyond_rates().tolist() == [1.0, 0.0]
     assert loss.training_mask().tolist() == [False, True]
@@ -65,3 +65,20 @@ def test_early_stop_freezes_a_stage_that_is_passed_often():
         assert torch.equal(a, b)
     loss.record_episodes([0] * 20)  # rolling window: stage 0 is hard again, training resumes
     assert loss.training_mask().tolist() == [True, True]
+
+
+def test_latched_early_stop_is_permanent_and_untrained_stages_add_nothing():
+    reward = DrSReward(N, ["observation"], {"observation": OBS}, formula="paper")
+    x = TensorDict({"observation": torch.randn(8, OBS), "stage": torch.tensor([[0], [1]] * 4)}, [8])
+    assert torch.equal(reward.reward(x), x["stage"].float())  # nothing trained yet: plain stage index
+    loss = DiscriminatorLoss(reward.discriminators, ["observation"], early_stop_threshold=0.95, window=10)
+    loss.record_episodes([1] * 10)
+    assert loss.training_mask().tolist() == [False, True]
+    loss.record_episodes([0] * 10)
+    assert loss.training_mask().tolist() == [False, True]  # latched
+    sb = separable_buffers()
+    loss(sb.sample_discriminator_batch())
+    assert reward.discriminators.trained.tolist() == [False, True]
+    r = reward.reward(x)
+    assert torch.equal(r[x["stage"].squeeze(-1) == 0], torch.zeros(4, 1))
+    assert not torch.equal(r[x["stage"].squeeze(-1) == 1], torch.ones(4, 1))

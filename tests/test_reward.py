@@ -40,7 +40,9 @@ def test_every_state_of_stage_k_plus_1_beats_every_state_of_stage_k(seed, N, for
     with torch.no_grad():
         for p in r.discriminators.parameters():
             p.copy_(torch.randn(p.shape, generator=gen) * weight_scale)
+        r.discriminators.trained.fill_(True)  # untrained ones would contribute 0
     rewards = [r.reward(states(k, 64, obs_scale, gen)).squeeze(-1) for k in range(N + 1)]
+    assert any(float(x.std()) > 0 for x in rewards[:N])  # the dense term is really there
     for k in range(N):
         assert rewards[k + 1].min() > rewards[k].max(), (k, rewards[k].max(), rewards[k + 1].min())
 
@@ -77,6 +79,7 @@ def test_reward_recomputed_on_replay_buffer_samples_with_current_weights():
         batch_size=[n],
     )
     rb.extend(data)
+    r.discriminators.trained.fill_(True)
     s1 = rb.sample()
     assert torch.allclose(s1["next", "reward"], r.reward(s1["next"]))
     with torch.no_grad():
@@ -92,6 +95,7 @@ def test_checkpoint_round_trip(tmp_path):
     with torch.no_grad():
         for p in r.discriminators.parameters():
             p.normal_()
+        r.discriminators.trained[:2] = True
     path = r.save(tmp_path / "reward.pt", frames=123)
     loaded = DrSReward.from_checkpoint(path)
     x = TensorDict({"observation": torch.randn(20, OBS), "stage": torch.randint(0, 4, (20, 1))}, [20])
@@ -99,6 +103,7 @@ def test_checkpoint_round_trip(tmp_path):
     assert loaded.metadata == {"family": "pick_cube", "frames": 123}
     assert loaded.formula == r.formula and loaded.alpha == r.alpha and loaded.discriminators.hidden == [16, 8]
     assert not list(tmp_path.glob("*.tmp"))
+    assert loaded.discriminators.trained.tolist() == [True, True, False]
 
 
 def spec(**dims):

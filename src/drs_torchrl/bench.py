@@ -108,6 +108,53 @@ def bench_learn(algo: str, frames: int, overrides: list[str]) -> dict:
     }
 
 
+def bench_checkpoint(transitions: int) -> dict:
+    """Size and write/read time of the training state of a run holding ``transitions`` transitions.
+
+    A real phase-1 Trainer (PickCube) collects 1024 real transitions; they are tiled until the
+    replay buffer and the stage buffers each hold ``transitions``; then the state is saved (timed),
+    and a second Trainer resumes from it (timed).
+    """
+    import shutil
+    import tempfile
+
+    from hydra import compose, initialize_config_dir
+
+    from drs_torchrl.trainers.apps import conf_dir
+    from drs_torchrl.trainers.loop import Trainer
+
+    with initialize_config_dir(config_dir=conf_dir(), version_base=None):
+        cfg = compose("learn", overrides=["total_frames=1024", "algo.learning_starts=100000", "eval.episodes=0",
+                                          "logger.progress_bar=false", "logger.tensorboard=false",
+                                          f"algo.buffer_size={transitions}", f"reward.stage_buffer_size={transitions}",
+                                          "checkpoint_interval=1000000000"])
+    d = Path(tempfile.mkdtemp(prefix="drs-ckpt-"))
+    try:
+        tr = Trainer(cfg, "learn", d)
+        tr.run()  # 1024 real transitions, saved state included
+        tr = Trainer(cfg, "learn", d, resume=True)
+        real = tr.replay[: len(tr.replay)]
+        states = tr.stage_buffers[: len(tr.stage_buffers)]
+        while len(tr.replay) < transitions:
+            tr.replay.extend(real[: transitions - len(tr.replay)])
+        while len(tr.stage_buffers) < transitions:
+            tr.stage_buffers.extend(states[: transitions - len(tr.stage_buffers)])
+        t = time.perf_counter()
+        state = tr.save_training_state()
+        write_s = time.perf_counter() - t
+        size = sum(f.stat().st_size for f in state.rglob("*") if f.is_file())
+        tr.close()
+        t = time.perf_counter()
+        tr2 = Trainer(cfg, "learn", d, resume=True)
+        read_s = time.perf_counter() - t
+        ok = len(tr2.replay) == transitions and len(tr2.stage_buffers) == transitions
+        tr2.close()
+    finally:
+        shutil.rmtree(d, ignore_errors=True)
+    return {"transitions": transitions, "bytes": size, "write_s": write_s, "resume_s": read_s, "restored": ok,
+            "bytes_per_transition_replay_plus_stage": size / transitions}
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="drs-bench", description=__doc__.split("\n")[0])
     p.add_argument("--family", default="pick_cube")
@@ -116,6 +163,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--learn-frames", type=int, default=2048)
     p.add_argument("--algos", nargs="*", default=["sac_cpu", "sac_paper"])
     p.add_argument("--out", default="results/bench")
+    p.add_argument("--checkpoint", type=int, default=0, metavar="N",
+                   help="also measure the training-state checkpoint of a run holding N transitions (e.g. 1000000)")
     a = p.parse_args(argv)
     from drs_torchrl.tasks import get_family
 
@@ -138,6 +187,10 @@ def main(argv: list[str] | None = None) -> int:
         r = bench_learn(algo, a.learn_frames, [f"env.family={a.family}"])
         res["learn"].append(r)
         print(f"  {r['env_steps_per_s']:.1f} env steps/s, {r['updates_per_s']:.1f} updates/s", flush=True)
+    if a.checkpoint:
+        print(f"checkpoint of a {a.checkpoint}-transition run ...", flush=True)
+        res["checkpoint"] = c = bench_checkpoint(a.checkpoint)
+        print(f"  {c['bytes'] / 1e6:.0f} MB, written in {c['write_s']:.1f}s, resumed in {c['resume_s']:.1f}s", flush=True)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "bench.json").write_text(json.dumps(res, indent=2))
@@ -150,6 +203,10 @@ def main(argv: list[str] | None = None) -> int:
     ]
     for r in res["learn"]:
         lines.append(f"| phase 1, {r['algo']} (batch {r['batch_size']}, UTD {r['utd']}) | {r['env_steps_per_s']:.1f} | {r['updates_per_s']:.1f} |")
+    if "checkpoint" in res:
+        c = res["checkpoint"]
+        lines += ["", f"Training-state checkpoint of a run holding {c['transitions']:,} transitions (replay buffer and stage buffers "
+                  f"each): {c['bytes'] / 1e6:.0f} MB on disk, written in {c['write_s']:.1f} s, resumed (loaded) in {c['resume_s']:.1f} s."]
     (out / "bench.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0

@@ -35,6 +35,10 @@ class VulkanUnavailableError(RuntimeError):
     """SAPIEN found no Vulkan device."""
 
 
+class CudaUnavailableError(RuntimeError):
+    """The config asks for CUDA (GPU simulation or learner) on a machine without it."""
+
+
 @functools.lru_cache(maxsize=1)
 def check_vulkan() -> str:
     """Return SAPIEN's render-device summary; raise :class:`VulkanUnavailableError` if none."""

@@ -23,7 +23,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from drs_torchrl.envs.doctor import ensure_env_ready
+from drs_torchrl.envs.doctor import CudaUnavailableError, ensure_env_ready
 
 
 class ManiSkillEnv(EnvBase):
@@ -65,7 +65,7 @@ class ManiSkillEnv(EnvBase):
             raise ValueError(f"sim_backend must be 'physx_cpu', 'physx_cuda' or 'auto', got {sim_backend!r}")
         gpu = sim_backend in ("physx_cuda", "gpu", "cuda")
         if gpu and not torch.cuda.is_available():
-            raise RuntimeError(
+            raise CudaUnavailableError(
                 "sim_backend='physx_cuda' was requested but CUDA is not available on this machine. "
                 "Use env.sim_backend=physx_cpu (one env per process) or run on a GPU machine."
             )

@@ -27,6 +27,8 @@ class DiscriminatorLoss(LossModule):
         early_stop_threshold: a discriminator trains only while the rolling rate of training
             episodes that get beyond its stage is ``<=`` this value (``None`` or ``>= 1``: always).
         window: number of recent training episodes in that rolling rate.
+        latch: once a stage passes the threshold its discriminator stops for good (the authors'
+            code); ``False`` resumes training whenever the rate falls back.
 
     Returns (``forward``) a TensorDict with ``loss_discriminator`` (sum over the stages that train)
     and, per stage ``k``, ``loss_k``, ``accuracy_k`` (on that batch) and ``active_k``.
@@ -41,6 +43,7 @@ class DiscriminatorLoss(LossModule):
         valid_key: str = "valid",
         early_stop_threshold: float | None = 0.95,
         window: int = 100,
+        latch: bool = True,
     ):
         super().__init__()
         if window < 1:
@@ -53,6 +56,8 @@ class DiscriminatorLoss(LossModule):
         self.num_stages = discriminators.num_stages
         self.register_buffer("recent_stages", torch.full((window,), -1, dtype=torch.long))
         self.register_buffer("recent_pos", torch.zeros((), dtype=torch.long))
+        self.register_buffer("stopped", torch.zeros(self.num_stages, dtype=torch.bool))
+        self.latch = latch
 
     # ----------------------------------------------------------- early stopping
     def record_episodes(self, stages: torch.Tensor | Sequence[int]) -> None:
@@ -74,7 +79,11 @@ class DiscriminatorLoss(LossModule):
         """Which discriminators still train (early stop of Sec. 4.3)."""
         if self.early_stop_threshold is None or self.early_stop_threshold >= 1:
             return torch.ones(self.num_stages, dtype=torch.bool)
-        return self.beyond_rates() <= self.early_stop_threshold
+        passed = self.beyond_rates() > self.early_stop_threshold
+        if self.latch:
+            self.stopped |= passed
+            return ~self.stopped
+        return ~passed
 
     # --------------------------------------------------------------------- loss
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -94,6 +103,7 @@ class DiscriminatorLoss(LossModule):
                 acc_k = ((logits > 0).float() == y[k]).float().mean()
             if active[k]:
                 total = total + loss_k
+                self.discriminators.trained[k] = True  # this loss is about to train it
             out[f"loss_{k}"] = loss_k.detach()
             out[f"accuracy_{k}"] = acc_k
             out[f"active_{k}"] = active[k].float()

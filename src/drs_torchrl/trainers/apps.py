@@ -76,7 +76,7 @@ def conf_dir() -> str:
 
 
 def _run(cfg: DictConfig, phase: str) -> None:
-    from drs_torchrl.envs.doctor import MissingAssetError, VulkanUnavailableError
+    from drs_torchrl.envs.doctor import CudaUnavailableError, MissingAssetError, VulkanUnavailableError
     from drs_torchrl.tasks import get_family
     from drs_torchrl.trainers.loop import ConfigError, NonFiniteError, TrainingStateError, train
     from drs_torchrl.transforms.reward import RewardCheckpointError
@@ -89,7 +89,7 @@ def _run(cfg: DictConfig, phase: str) -> None:
             cfg = resume_config(Path(run_dir), phase, list(HydraConfig.get().overrides.task))
         get_family(cfg.env.family)
         summary = train(cfg, phase, run_dir, resume=resume)
-    except (ConfigError, RewardCheckpointError, MissingAssetError, VulkanUnavailableError, TrainingStateError,
+    except (ConfigError, RewardCheckpointError, MissingAssetError, VulkanUnavailableError, CudaUnavailableError, TrainingStateError,
             ResumeError, KeyError, ValueError) as exc:
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
         print(f"drs-{phase}: error: {msg}", file=sys.stderr)

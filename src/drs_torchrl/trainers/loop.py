@@ -106,7 +106,6 @@ class Trainer:
         (self.run_dir / "checkpoints").mkdir(exist_ok=True)
         if resume:
             find_training_state(self.run_dir)  # fail before building anything
-        OmegaConf.save(cfg, self.run_dir / "config.yaml", resolve=True)
         seed_everything(int(cfg.seed))
         self.device = torch.device("cuda" if cfg.device == "auto" and torch.cuda.is_available() else ("cpu" if cfg.device == "auto" else cfg.device))
         self.family = family = get_family(cfg.env.family)
@@ -166,7 +165,7 @@ class Trainer:
             )
             self.disc_loss = DiscriminatorLoss(
                 self.learned.discriminators, self.learned.reward_in_keys,
-                early_stop_threshold=d.early_stop_threshold, window=int(d.window),
+                early_stop_threshold=d.early_stop_threshold, window=int(d.window), latch=bool(d.get("latch", True)),
             )
             self.optim_disc = torch.optim.Adam(self.learned.discriminators.parameters(), lr=float(d.lr))
             demos = cfg.get("demos") or {}
@@ -198,6 +197,8 @@ class Trainer:
         self.logger = RunLogger(
             self.run_dir, tensorboard=cfg.logger.tensorboard, csv_files=cfg.logger.csv, resume_step=self.resumed_from
         )
+        # written last: a run that fails to start (or to resume) leaves the directory as it was
+        OmegaConf.save(cfg, self.run_dir / "config.yaml", resolve=True)
 
     # ------------------------------------------------------------------ rewards
     def episode_reward(self, episode) -> torch.Tensor:

@@ -39,7 +39,9 @@ class StageDiscriminators(nn.Module):
     """One small MLP per stage ``k = 0..N-1`` (Appendix E.1: one hidden layer of 32 units).
 
     ``forward(x)`` returns the logits of every discriminator, shape ``(*batch, N)``, so the reward
-    of a batch of mixed stages is one pass followed by a gather.
+    of a batch of mixed stages is one pass followed by a gather. ``trained[k]`` records whether
+    discriminator ``k`` has taken a training step; an untrained one contributes 0 to the reward (as
+    in the authors' code), not the output of its random initialisation.
     """
 
     def __init__(self, num_stages: int, in_features: int, hidden: Sequence[int] | int = (32,), activation: str = "sigmoid"):
@@ -60,6 +62,12 @@ class StageDiscriminators(nn.Module):
             return nn.Sequential(*layers)
 
         self.nets = nn.ModuleList(mlp() for _ in range(num_stages))
+        self.register_buffer("trained", torch.zeros(num_stages, dtype=torch.bool))
+
+    def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
+        if "trained" not in state_dict:  # checkpoints written before the flag existed: all trained
+            state_dict = {**state_dict, "trained": torch.ones(self.num_stages, dtype=torch.bool)}
+        return super().load_state_dict(state_dict, strict=strict, assign=assign)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return torch.cat([net(x) for net in self.nets], dim=-1)
@@ -141,10 +149,12 @@ class DrSReward(Transform):
         """Eq. 4 from all-stage logits ``(*b, N)`` and stage indices ``(*b, 1)``; returns ``(*b, 1)``."""
         stage = stage.to(torch.long)
         if self.formula == "sum":
-            return torch.tanh(logits).sum(-1, keepdim=True)
+            return (torch.tanh(logits) * self.discriminators.trained.to(logits.dtype)).sum(-1, keepdim=True)
         k = stage.clamp(0, self.num_stages)
-        dense = torch.tanh(logits.gather(-1, k.clamp(max=self.num_stages - 1)))
-        dense = torch.where(k < self.num_stages, dense, torch.zeros_like(dense))
+        kd = k.clamp(max=self.num_stages - 1)
+        dense = torch.tanh(logits.gather(-1, kd))
+        counts = (k < self.num_stages) & self.discriminators.trained.to(k.device)[kd]
+        dense = torch.where(counts, dense, torch.zeros_like(dense))
         r = k.to(logits.dtype) + self.alpha * dense
         if self.formula == "rescaled":
             r = r / self.num_stages + self.offset
@@ -169,14 +179,14 @@ class DrSReward(Transform):
         return tensordict_reset
 
     def reward_bounds(self) -> tuple[float, float]:
-        """Range of the reward over all stages (for ``"paper"``: ``(-alpha, N)``)."""
-        lo = torch.tensor([[0.0]]), torch.tensor([[0]])
-        hi_stage = torch.tensor([[self.num_stages]])
+        """Infimum and maximum of the reward once all discriminators are trained
+        (``"paper"``: ``(-alpha, N)``; ``"rescaled"``: ``(offset - alpha/N, offset + 1)``)."""
+        N, a = self.num_stages, self.alpha
         if self.formula == "sum":
-            return (-float(self.num_stages), float(self.num_stages))
-        low = self.combine(torch.full((1, self.num_stages), -1e4), lo[1])
-        high = self.combine(torch.zeros((1, self.num_stages)), hi_stage)
-        return float(low), float(high)
+            return (-float(N), float(N))
+        if self.formula == "paper":
+            return (-a, float(N))
+        return (self.offset - a / N, self.offset + 1.0)
 
     # ------------------------------------------------------------ construction
     @classmethod
