@@ -24,8 +24,6 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDict
-from torchrl.collectors import Collector
-from torchrl.data import LazyTensorStorage, ReplayBuffer
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm.auto import tqdm
 
@@ -100,6 +98,14 @@ class Trainer:
     """Holds the TorchRL pieces of one run and runs Algorithm 1 over them."""
 
     def __init__(self, cfg: DictConfig, phase: str, run_dir: str | Path, *, resume: bool = False):
+        self.env = self.eval_env = self.collector = self.logger = None
+        try:
+            self._build(cfg, phase, run_dir, resume)
+        except BaseException:
+            self.close()
+            raise
+
+    def _build(self, cfg: DictConfig, phase: str, run_dir: str | Path, resume: bool) -> None:
         validate_config(cfg, phase)
         self.cfg, self.phase, self.run_dir = cfg, phase, Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
@@ -153,11 +159,8 @@ class Trainer:
         self.optim_actor = instantiate(a.optim)(list(self.loss.actor_network_params.values(True, True)))
         self.optim_critic = instantiate(a.optim)(list(self.loss.qvalue_network_params.values(True, True)))
         self.optim_alpha = instantiate(a.optim)([self.loss.log_alpha])
-        self.replay = ReplayBuffer(
-            storage=LazyTensorStorage(int(a.buffer_size)),
-            batch_size=int(a.batch_size),
-            transform=self.learned,  # recomputes ("next", "reward") from the current discriminators
-        )
+        # the learned reward recomputes ("next", "reward") from the current discriminators at sampling
+        self.replay = instantiate(a.replay_buffer)(transform=self.learned)
         if self.learned is not None:
             d = cfg.reward.disc
             self.stage_buffers = StageBuffers(
@@ -358,14 +361,12 @@ class Trainer:
         summary: dict[str, Any] = {"phase": self.phase, "run_dir": str(self.run_dir), "resumed_from": self.resumed_from}
         remaining = total - self.frames
         if remaining > 0:
-            self.collector = Collector(
+            self.collector = instantiate(a.collector)(
                 self.env,
                 self.actor,
-                frames_per_batch=int(a.frames_per_batch),
                 total_frames=remaining,
                 init_random_frames=max(0, int(a.learning_starts) - self.frames),
                 device=self.device,
-                auto_register_policy_transforms=False,
             )
         bar = tqdm(total=total, initial=self.frames, desc=f"drs-{self.phase}", unit="step",
                    disable=not cfg.logger.progress_bar, dynamic_ncols=True)
@@ -511,14 +512,15 @@ class Trainer:
         return row
 
     def close(self) -> None:
-        self.logger.close()
+        if self.logger is not None:
+            self.logger.close()
         if self.collector is not None:
             try:
                 self.collector.shutdown()
             except Exception:
                 pass
         for env in (self.env, self.eval_env):
-            if not env.is_closed:
+            if env is not None and not env.is_closed:
                 env.close()
 
 
