@@ -68,8 +68,9 @@ def test_reuse_loads_the_learned_reward_on_the_test_variant_and_trains(learned, 
     assert "split: test" in cfg
     # the rewards SAC trained on come from the frozen learned reward: rescaled range is [-2-1/9, -1]
     rows = list(csv.DictReader((tmp_path / "train.csv").open()))
-    r = [float(x["reward_min"]) for x in rows if x.get("reward_min")]
-    assert r and min(r) >= -2 - 1 / 9 - 1e-4
+    lo = [float(x["reward_min"]) for x in rows if x.get("reward_min")]
+    hi = [float(x["reward_max"]) for x in rows if x.get("reward_max")]
+    assert lo and min(lo) >= -2 - 1 / 9 - 1e-4 and max(hi) <= -1 + 1e-4  # not ManiSkill's 0/1 sparse reward
     assert (tmp_path / "checkpoints" / "policy.pt").is_file()
 
 
@@ -77,12 +78,13 @@ def test_reuse_loads_the_learned_reward_on_the_test_variant_and_trains(learned, 
 def test_reuse_with_baseline_rewards(baseline, tmp_path):
     p = run("drs-reuse", *TINY, f"reward={baseline}", "total_frames=384", f"hydra.run.dir={tmp_path}", cwd=tmp_path)
     assert p.returncode == 0, p.stderr[-3000:]
-    rows = list(csv.DictReader((tmp_path / "train.csv").open()))
-    r = [float(x["reward_max"]) for x in rows if x.get("reward_max")]
+    rows = [x for x in csv.DictReader((tmp_path / "train.csv").open()) if x.get("reward_max")]
+    lo = min(float(x["reward_min"]) for x in rows)
+    hi = max(float(x["reward_max"]) for x in rows)
     if baseline == "semi_sparse":
-        assert r and max(r) <= 0.0  # k - N
+        assert lo == -3.0 and hi <= 0.0  # k - N: stage-0 states get -3
     else:
-        assert r and 0.0 <= max(r) <= 1.0  # ManiSkill's normalized dense reward
+        assert 0.0 < lo and hi <= 1.0  # normalized dense: the reaching term makes every reward > 0
 
 
 def test_reuse_rejects_a_checkpoint_that_does_not_fit(learned, tmp_path):
@@ -109,6 +111,10 @@ def test_reuse_without_checkpoint_and_bad_values_fail_clearly(tmp_path):
     assert p.returncode != 0 and "batchsize" in p.stderr
     p = run("drs-learn", *TINY, "env.split=cube_9cm", f"hydra.run.dir={tmp_path / 'f'}", cwd=tmp_path)
     assert p.returncode == 2 and "no variant 'cube_9cm'" in p.stderr
+    p = run("drs-learn", *TINY, "reward=vice", f"hydra.run.dir={tmp_path / 'g'}", cwd=tmp_path)
+    assert p.returncode != 0 and "Could not find 'reward/vice'" in p.stderr and "semi_sparse" in p.stderr
+    p = run("drs-learn", *TINY, "algo.buffer_size=16", f"hydra.run.dir={tmp_path / 'h'}", cwd=tmp_path)
+    assert p.returncode == 2 and "smaller than algo.batch_size" in p.stderr
 
 
 def test_learn_with_two_cpu_envs(tmp_path):
@@ -116,8 +122,13 @@ def test_learn_with_two_cpu_envs(tmp_path):
             f"hydra.run.dir={tmp_path}", cwd=tmp_path)
     assert p.returncode == 0, p.stderr[-3000:]
     summary = json.loads((tmp_path / "summary.json").read_text())
-    # 384 steps over two envs of 50-step episodes: both envs' episodes are filed
-    assert summary["frames"] == 384 and sum(summary["stage_buffer_episodes"]) >= 6
+    # 384 steps over two envs = 192 per env: three finished 50-step episodes each (unless one
+    # succeeds early); assembled per env, so no episode is longer than 50 steps
+    eps, trans = summary["stage_buffer_episodes"], summary["stage_buffer_transitions"]
+    assert summary["frames"] == 384 and sum(eps) >= 6
+    assert sum(trans) <= 50 * sum(eps)
+    rows = [x for x in csv.DictReader((tmp_path / "train.csv").open()) if x.get("episode_length")]
+    assert all(float(x["episode_length"]) <= 50 for x in rows)
 
 
 def test_no_vulkan_device_says_how_to_install_one(tmp_path):

@@ -42,3 +42,34 @@ def test_stage_buffers_round_trip(tmp_path):
     assert sb2.stage_counts().tolist() == sb.stage_counts().tolist() == [2, 3, 3]
     assert torch.equal(sb2[: len(sb2)]["observation"], sb[: len(sb)]["observation"])
     assert sb2.sample_discriminator_batch().shape == (2, 2, 4)
+
+
+def _traj(stages, start):
+    T = len(stages)
+    return TensorDict({"next": {"observation": torch.arange(start, start + T, dtype=torch.float32)[:, None],
+                                "stage": torch.tensor(stages)[:, None]}}, [T])
+
+
+def test_full_wrapped_stage_buffers_round_trip(tmp_path):
+    sb = StageBuffers(2, ["observation"], capacity=10, batch_size=4)
+    sb.add_trajectory(_traj([2] * 6, 0))
+    sb.add_trajectory(_traj([0] * 4, 100))
+    sb.add_trajectory(_traj([1] * 3, 200))  # wraps: overwrites three stage-2 slots
+    assert sb.stage_counts().tolist() == [4, 3, 3]
+    dump_buffer(sb, tmp_path / "sb")
+    assert (tmp_path / "sb" / "part1").is_dir()  # oldest-first in two parts
+    sb2 = StageBuffers(2, ["observation"], capacity=10, batch_size=4)
+    load_buffer(sb2, tmp_path / "sb")
+    assert sb2.stage_counts().tolist() == [4, 3, 3]
+    assert sorted(sb2[:10]["observation"].squeeze(-1).tolist()) == sorted(sb[:10]["observation"].squeeze(-1).tolist())
+    sb2.add_trajectory(_traj([0, 0], 300))  # the two oldest left are stage-2 slots 3 and 4
+    assert sb2.stage_counts().tolist() == [6, 3, 1]
+
+
+def test_slot_overwritten_twice_before_a_sample_keeps_its_last_label():
+    sb = StageBuffers(2, ["observation"], capacity=4, batch_size=2)
+    sb.add_trajectory(_traj([2] * 4, 0))
+    sb.add_trajectory(_traj([1] * 4, 10))  # overwrites every slot before any sync
+    sb.add_trajectory(_traj([0] * 2, 20))  # and two of them again
+    assert sb.stage_counts().tolist() == [2, 2, 0]
+    assert sb.valid_discriminators().tolist() == [True, False]

@@ -1,5 +1,6 @@
 """A real run killed mid-way (SIGKILL) resumes from its last checkpoint with the same state."""
 import csv
+import hashlib
 import json
 import os
 import signal
@@ -99,6 +100,33 @@ def test_sigterm_saves_state_and_resume_finishes(tmp_path):
     assert p.returncode == 0, p.stderr[-3000:]
     s2 = json.loads((run_dir / "summary.json").read_text())
     assert s2["resumed_from"] == summary["frames"] and s2["frames"] >= summary["frames"] + 256
+
+
+def _digest(d: Path) -> dict:
+    return {str(f.relative_to(d)): hashlib.sha256(f.read_bytes()).hexdigest() for f in d.rglob("*") if f.is_file()}
+
+
+def test_reuse_resumes_and_bad_resumes_leave_the_run_untouched(tmp_path):
+    env = dict(os.environ, PYTHONWARNINGS="ignore")
+    run_dir = tmp_path / "reuse"
+    args = [a for a in TINY if not a.startswith("reward.disc")]
+    p = subprocess.run([str(BIN / "drs-reuse"), *args, "reward=dense", "total_frames=512", f"hydra.run.dir={run_dir}"],
+                       env=env, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-3000:]
+    before = _digest(run_dir)
+    for bad, code, expect in [(["algo=sac_paper"], 2, "cannot switch config group 'algo'"),
+                              (["algo.no_such_key=1"], 1, "no_such_key"),  # Hydra refuses it when composing
+                              (["total_frames=-3"], 2, "total_frames must be > 0")]:
+        p = subprocess.run([str(BIN / "drs-reuse"), f"resume={run_dir}", *bad], env=env, capture_output=True, text=True, timeout=300)
+        assert p.returncode == code and expect in p.stderr, p.stderr[-2000:]
+    p = subprocess.run([str(BIN / "drs-learn"), f"resume={run_dir}"], env=env, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 2 and "resume it with drs-reuse" in p.stderr
+    after = {k: v for k, v in _digest(run_dir).items() if not k.startswith(".hydra-resume-")}
+    assert after == before, "a failed resume changed the run's files"
+    p = subprocess.run([str(BIN / "drs-reuse"), f"resume={run_dir}", "total_frames=768"], env=env, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-3000:]
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["resumed_from"] == 512 and summary["frames"] >= 768
 
 
 def test_resume_errors_are_clear(tmp_path):

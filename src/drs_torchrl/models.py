@@ -22,11 +22,13 @@ def make_sac_modules(
     in_keys: Sequence[str] = ("observation",),
     hidden: Sequence[int] = (256, 256, 256),
     activation: type[nn.Module] = nn.ReLU,
+    device: torch.device | str | None = None,
 ) -> tuple[ProbabilisticActor, ValueOperator]:
     """A tanh-Gaussian actor and a Q-value network reading ``in_keys`` (+ ``"action"``).
 
     The actor's distribution is bounded by the action spec; several ``in_keys`` are concatenated
-    (the stage indicators can be policy inputs, as in the authors' code).
+    (the stage indicators can be policy inputs, as in the authors' code). The modules are built on
+    ``device`` (default: the spec's device).
     """
     in_keys = list(in_keys)
     n_obs = _in_features(observation_spec, in_keys)
@@ -54,8 +56,10 @@ def make_sac_modules(
     )
     qnet = MLP(in_features=n_obs + n_act, out_features=1, num_cells=list(hidden), activation_class=activation)
     qvalue = ValueOperator(qnet, in_keys=[*in_keys, "action"])
+    device = torch.device(device) if device is not None else observation_spec.device or torch.device("cpu")
+    actor, qvalue = actor.to(device), qvalue.to(device)
     with torch.no_grad():
-        td = observation_spec.zero()
+        td = observation_spec.zero().to(device)
         actor(td)
         qvalue(td)
     return actor, qvalue

@@ -195,10 +195,8 @@ class ManiSkillEnv(EnvBase):
         return TensorDict(out, batch_size=b, device=self.device)
 
     def _set_seed(self, seed: int | None) -> None:
-        # ManiSkill seeds its episode RNG on the next reset
+        # ManiSkill seeds its episode RNG on the next reset; torch's global RNG is left alone
         self._seed = None if seed is None else int(seed)
-        if seed is not None:
-            torch.manual_seed(seed)
 
     def close(self, *, raise_if_closed: bool = True):
         try:

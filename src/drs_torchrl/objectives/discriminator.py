@@ -26,7 +26,8 @@ class DiscriminatorLoss(LossModule):
         in_keys: reward input entries of the batch (concatenated as in the reward).
         early_stop_threshold: a discriminator trains only while the rolling rate of training
             episodes that get beyond its stage is ``<=`` this value (``None`` or ``>= 1``: always).
-        window: number of recent training episodes in that rolling rate.
+        window: number of recent training episodes in that rolling rate; nothing stops before
+            that many episodes have been recorded.
         latch: once a stage passes the threshold its discriminator stops for good (the authors'
             code); ``False`` resumes training whenever the rate falls back.
 
@@ -79,6 +80,8 @@ class DiscriminatorLoss(LossModule):
         """Which discriminators still train (early stop of Sec. 4.3)."""
         if self.early_stop_threshold is None or self.early_stop_threshold >= 1:
             return torch.ones(self.num_stages, dtype=torch.bool)
+        if int(self.recent_pos) < self.recent_stages.numel():  # judge only a full window of episodes
+            return ~self.stopped
         passed = self.beyond_rates() > self.early_stop_threshold
         if self.latch:
             self.stopped |= passed

@@ -24,6 +24,7 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDict
+from torchrl.envs.transforms import DeviceCastTransform
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm.auto import tqdm
 
@@ -133,8 +134,12 @@ class Trainer:
         self.eval_env = make_family_env(
             family, cfg.eval.get("split") or cfg.env.split, seed=int(cfg.seed) + 10_000, **{**env_kwargs, "num_envs": 1}
         )
+        for env in (self.env, self.eval_env):
+            if env.device != self.device:  # e.g. CPU simulation feeding a CUDA learner: data moves at the env edge
+                env.append_transform(DeviceCastTransform(self.device, orig_device=env.device))
         if reward.frozen is not None:
             reward.frozen.check_compatible(self.env.observation_spec, num_stages=self.num_stages, family=family.name)
+            reward.frozen.to(self.device)
             self.env.append_transform(reward.frozen)
             self.eval_env.append_transform(reward.frozen.clone())
         if phase == "learn" and reward.name == "drs":
@@ -146,25 +151,28 @@ class Trainer:
                 "stage_keys": list(family.stage_keys),
                 "seed": int(cfg.seed),
             }
-            reward.learned = new_drs_reward(cfg.reward, family, self.env.observation_spec, meta)
+            reward.learned = new_drs_reward(cfg.reward, family, self.env.observation_spec, meta).to(self.device)
         self.learned = reward.learned
 
         a = cfg.algo
         self.actor, self.qvalue = make_sac_modules(
-            self.env.observation_spec, self.env.action_spec, list(a.policy_in_keys), list(a.hidden)
+            self.env.observation_spec, self.env.action_spec, list(a.policy_in_keys), list(a.hidden), device=self.device
         )
         self.loss = instantiate(a.loss)(actor_network=self.actor, qvalue_network=self.qvalue, action_spec=self.env.action_spec)
+        self.loss.to(self.device)
         self.loss.make_value_estimator(gamma=float(a.gamma))
         self.target_updater = instantiate(a.target_update)(self.loss)
         self.optim_actor = instantiate(a.optim)(list(self.loss.actor_network_params.values(True, True)))
         self.optim_critic = instantiate(a.optim)(list(self.loss.qvalue_network_params.values(True, True)))
         self.optim_alpha = instantiate(a.optim)([self.loss.log_alpha])
         # the learned reward recomputes ("next", "reward") from the current discriminators at sampling
-        self.replay = instantiate(a.replay_buffer)(transform=self.learned)
+        # (its storage lives on the learner's device, where the reward transform runs)
+        self.replay = instantiate(a.replay_buffer, storage={"device": str(self.device)})(transform=self.learned)
         if self.learned is not None:
             d = cfg.reward.disc
             self.stage_buffers = StageBuffers(
-                self.num_stages, self.learned.reward_in_keys, capacity=int(cfg.reward.stage_buffer_size), batch_size=int(d.batch_size)
+                self.num_stages, self.learned.reward_in_keys, capacity=int(cfg.reward.stage_buffer_size),
+                batch_size=int(d.batch_size), scratch_dir=cfg.reward.get("stage_buffer_scratch_dir"),
             )
             self.disc_loss = DiscriminatorLoss(
                 self.learned.discriminators, self.learned.reward_in_keys,
@@ -207,14 +215,14 @@ class Trainer:
     def episode_reward(self, episode) -> torch.Tensor:
         """Reward of an episode's transitions under the reward being trained on (for logging)."""
         if self.learned is not None:
-            return self.learned.reward(episode.get("next"))
+            return self.learned.reward(episode.get("next").to(self.device))
         return episode.get(("next", "reward"))
 
     # ------------------------------------------------------------------ updates
     def _disc_step(self) -> TensorDict | None:
         if self.stage_buffers is None or len(self.stage_buffers) == 0:
             return None
-        batch = self.stage_buffers.sample_discriminator_batch()
+        batch = self.stage_buffers.sample_discriminator_batch().to(self.device)
         out = self.disc_loss(batch)
         loss = out["loss_discriminator"]
         if loss.requires_grad:
@@ -253,7 +261,9 @@ class Trainer:
             "policy_in_keys": list(self.cfg.algo.policy_in_keys),
             "hidden": list(self.cfg.algo.hidden),
             "actor": self.actor.state_dict(),
-            "qvalue": self.qvalue.state_dict(),
+            # SACLoss trains its own stacked copies of the critics (one per Q-net), not self.qvalue
+            "qvalue_params": self.loss.qvalue_network_params.data.cpu().to_dict(),
+            "num_qvalue_nets": int(self.loss.num_qvalue_nets),
         }
         atomic_torch_save(policy, ck / "policy.pt")
         paths["policy"] = str(ck / "policy.pt")
@@ -269,11 +279,15 @@ class Trainer:
         """Everything needed to continue the run, written atomically to ``checkpoints/state``.
 
         Networks, target networks and entropy coefficient (the SAC loss module's state), optimisers,
-        discriminators and their early-stop window, replay buffer and stage buffers (TorchRL's
-        on-disk format, memory-mapped), step counters, RNG states and recent-episode statistics.
+        discriminators and their early-stop window, replay buffer and stage buffers (memory-mapped
+        TensorDicts of the filled slots only), step counters, RNG states and recent-episode statistics.
         A new state is written beside the old one and swapped in by renames, so a crash while
-        writing leaves the previous state usable.
+        writing leaves the previous state usable; SIGINT/SIGTERM arriving meanwhile are delivered after.
         """
+        with _signals_deferred():
+            return self._write_training_state()
+
+    def _write_training_state(self) -> Path:
         ck = self.run_dir / "checkpoints"
         final, tmp, old = ck / "state", ck / f"state.tmp-{os.getpid()}", ck / "state.old"
         shutil.rmtree(tmp, ignore_errors=True)
@@ -299,9 +313,12 @@ class Trainer:
             payload["stage_buffer_episodes"] = self.stage_buffers.episodes_per_stage.tolist()
         torch.save(payload, tmp / "trainer.pt")
         (tmp / "COMPLETE").write_text(str(self.frames))
-        shutil.rmtree(old, ignore_errors=True)
-        if final.exists():
+        # swap in: at every instant one complete state exists (final, else old)
+        if (final / "COMPLETE").is_file():
+            shutil.rmtree(old, ignore_errors=True)
             final.rename(old)
+        elif final.exists():
+            shutil.rmtree(final)  # a partial state left by a crash; old (if any) stays the fallback
         tmp.rename(final)
         shutil.rmtree(old, ignore_errors=True)
         return final
@@ -564,6 +581,26 @@ def atomic_write_text(path: Path, text: str) -> None:
 
 def _raise_interrupt(signum, frame):
     raise KeyboardInterrupt(f"signal {signum}")
+
+
+class _signals_deferred:
+    """Hold SIGINT/SIGTERM while a checkpoint is written; deliver them once it is complete."""
+
+    def __enter__(self):
+        self.pending = []
+        self.previous = {}
+        if not _in_main_thread():
+            return self
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self.previous[sig] = signal.signal(sig, lambda signum, frame: self.pending.append(signum))
+        return self
+
+    def __exit__(self, *exc):
+        for sig, handler in self.previous.items():
+            signal.signal(sig, handler)
+        if self.pending and exc[0] is None:
+            raise KeyboardInterrupt(f"signal {self.pending[0]}")
+        return False
 
 
 def _in_main_thread() -> bool:
