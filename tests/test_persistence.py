@@ -3,7 +3,7 @@ import torch
 from tensordict import TensorDict
 from torchrl.data import LazyTensorStorage, ReplayBuffer
 
-from drs_torchrl.data import StageBuffers
+from drs_torchrl.data import TRAJ_STAGE_KEY, StageBuffers
 from drs_torchrl.data.persistence import dump_buffer, load_buffer
 
 
@@ -40,7 +40,8 @@ def test_stage_buffers_round_trip(tmp_path):
     sb2 = StageBuffers(2, ["observation"], capacity=100, batch_size=4)
     load_buffer(sb2, tmp_path / "sb")
     assert sb2.stage_counts().tolist() == sb.stage_counts().tolist() == [2, 3, 3]
-    assert torch.equal(sb2[: len(sb2)]["observation"], sb[: len(sb)]["observation"])
+    for j in range(3):
+        assert torch.equal(sb2.stage_data(j)["observation"], sb.stage_data(j)["observation"])
     assert sb2.sample_discriminator_batch().shape == (2, 2, 4)
 
 
@@ -51,25 +52,29 @@ def _traj(stages, start):
 
 
 def test_full_wrapped_stage_buffers_round_trip(tmp_path):
-    sb = StageBuffers(2, ["observation"], capacity=10, batch_size=4)
-    sb.add_trajectory(_traj([2] * 6, 0))
+    sb = StageBuffers(2, ["observation"], capacity=4, batch_size=4)
+    sb.add_trajectory(_traj([2] * 3, 0))
     sb.add_trajectory(_traj([0] * 4, 100))
-    sb.add_trajectory(_traj([1] * 3, 200))  # wraps: overwrites three stage-2 slots
-    assert sb.stage_counts().tolist() == [4, 3, 3]
+    sb.add_trajectory(_traj([0] * 3, 200))  # stage 0 wraps: 103 and 200-202 remain
+    assert sb.stage_counts().tolist() == [4, 0, 3]
     dump_buffer(sb, tmp_path / "sb")
-    assert (tmp_path / "sb" / "part1").is_dir()  # oldest-first in two parts
-    sb2 = StageBuffers(2, ["observation"], capacity=10, batch_size=4)
+    sb2 = StageBuffers(2, ["observation"], capacity=4, batch_size=4)
     load_buffer(sb2, tmp_path / "sb")
-    assert sb2.stage_counts().tolist() == [4, 3, 3]
-    assert sorted(sb2[:10]["observation"].squeeze(-1).tolist()) == sorted(sb[:10]["observation"].squeeze(-1).tolist())
-    sb2.add_trajectory(_traj([0, 0], 300))  # the two oldest left are stage-2 slots 3 and 4
-    assert sb2.stage_counts().tolist() == [6, 3, 1]
+    assert sb2.stage_counts().tolist() == [4, 0, 3]
+    age = sb2.stage_data(0)["observation"].squeeze(-1).tolist()
+    assert age == [103.0, 200.0, 201.0, 202.0]
+    sb2.add_trajectory(_traj([0], 300))  # evicts the oldest stage-0 state (103), nothing else
+    assert sb2.stage_data(0)["observation"].squeeze(-1).tolist() == [200.0, 201.0, 202.0, 300.0]
+    assert sb2.stage_counts().tolist() == [4, 0, 3]
 
 
-def test_slot_overwritten_twice_before_a_sample_keeps_its_last_label():
+def test_ring_overwritten_twice_before_a_sample_keeps_its_last_labels():
     sb = StageBuffers(2, ["observation"], capacity=4, batch_size=2)
-    sb.add_trajectory(_traj([2] * 4, 0))
-    sb.add_trajectory(_traj([1] * 4, 10))  # overwrites every slot before any sync
-    sb.add_trajectory(_traj([0] * 2, 20))  # and two of them again
-    assert sb.stage_counts().tolist() == [2, 2, 0]
+    sb.add_trajectory(_traj([1] * 4, 0))
+    sb.add_trajectory(_traj([1] * 4, 10))  # overwrites the whole stage-1 ring before any sync
+    sb.add_trajectory(_traj([1] * 2, 20))  # and two slots again
+    sb.add_trajectory(_traj([0] * 2, 30))
+    assert sb.stage_counts().tolist() == [2, 4, 0]
     assert sb.valid_discriminators().tolist() == [True, False]
+    b = sb.sample_discriminator_batch()
+    assert set(b[TRAJ_STAGE_KEY][0, 1].tolist()) == {1}

@@ -39,10 +39,10 @@ def test_filing_by_highest_stage_with_truncation():
     assert sb.add_trajectory(traj([0, 0, 1, 0]), demo=True) == 3  # demos: top, whole
     assert sb.stage_counts().tolist() == [4, 3, 0, 8]
     assert sb.episodes_per_stage.tolist() == [1, 1, 0, 2]
-    stored = sb.storage[: len(sb)]
     # the stage-1 failure kept steps 0..2 (last step at stage 1 is index 2)
-    s1 = stored[stored[TRAJ_STAGE_KEY] == 1]
-    assert s1["observation"][:, 0].tolist() == [0.0, 1.0, 2.0]
+    s1 = sb.stage_data(1)
+    assert s1["observation"][:, 0].tolist() == [0.0, 1.0, 2.0] and (s1[TRAJ_STAGE_KEY] == 1).all()
+    assert sb.stage_data(3)["observation"][:, 0].tolist() == [0.0, 1.0, 2.0, 3.0, 0.0, 1.0, 2.0, 3.0]
 
 
 def test_positives_and_negatives_respect_stage_split():
@@ -86,18 +86,23 @@ def test_discriminator_without_positives_is_marked_invalid():
     assert sb.sample_discriminator_batch()["valid"][:, 0, 0, 0].tolist() == [True, False, False]
 
 
-def test_overwritten_slots_leave_their_old_stage():
-    sb = StageBuffers(N, ["observation"], capacity=10, batch_size=4)
-    sb.add_trajectory(traj([3] * 6))
-    sb.add_trajectory(traj([0] * 4))
-    assert sb.stage_counts().tolist() == [4, 0, 0, 6]
-    sb.add_trajectory(traj([1] * 5))  # overwrites 5 of the oldest (stage-3) slots
-    assert sb.stage_counts().tolist() == [4, 5, 0, 1]
-    assert len(sb) == 10
-    stored = sb.storage[:10][TRAJ_STAGE_KEY]
-    assert sorted(stored.tolist()) == [0] * 4 + [1] * 5 + [3]
+def test_each_stage_is_its_own_fifo_ring():
+    sb = StageBuffers(N, ["observation"], capacity=4, batch_size=4)
+    sb.add_trajectory(traj([3] * 3))
+    sb.add_trajectory(traj([0] * 4, offset=10))
+    assert sb.stage_counts().tolist() == [4, 0, 0, 3]
+    sb.add_trajectory(traj([0] * 2, offset=20))  # stage 0 is full: its two oldest go, stage 3 is untouched
+    assert sb.stage_counts().tolist() == [4, 0, 0, 3] and len(sb) == 7
+    assert sb.stage_data(0)["observation"][:, 0].tolist() == [12.0, 13.0, 20.0, 21.0]  # oldest first
     batch = sb.sample_discriminator_batch()
-    assert (batch[TRAJ_STAGE_KEY][2, 1] == 3).all()  # the one stage-3 slot left
+    assert (batch[TRAJ_STAGE_KEY][2, 1] == 3).all() and (batch[TRAJ_STAGE_KEY][0, 0] == 0).all()
+
+
+def test_trajectory_longer_than_its_ring_keeps_its_last_states():
+    sb = StageBuffers(N, ["observation"], capacity=3, batch_size=2)
+    sb.add_trajectory(traj([0] * 5))
+    assert sb.stage_counts().tolist() == [3, 0, 0, 0]
+    assert sb.stage_data(0)["observation"][:, 0].tolist() == [2.0, 3.0, 4.0]
 
 
 def test_state_dict_round_trip():
@@ -108,7 +113,8 @@ def test_state_dict_round_trip():
     sb2.load_state_dict(sb.state_dict())
     assert sb2.stage_counts().tolist() == sb.stage_counts().tolist()
     assert sb2.episodes_per_stage.tolist() == [0, 1, 0, 1]
-    assert torch.equal(sb2.storage[: len(sb2)]["observation"], sb.storage[: len(sb)]["observation"])
+    for j in range(N + 1):
+        assert torch.equal(sb2.stage_data(j)["observation"], sb.stage_data(j)["observation"])
 
 
 def test_assembler_joins_episodes_across_batches_per_env():

@@ -134,7 +134,7 @@ def bench_checkpoint(transitions: int) -> dict:
         tr.run()  # 1024 real transitions, saved state included
         tr = Trainer(cfg, "learn", d, resume=True)
         real = tr.replay[: len(tr.replay)]
-        states = tr.stage_buffers[: len(tr.stage_buffers)]
+        states = torch.cat(tr.stage_buffers.snapshot_parts())
         while len(tr.replay) < transitions:
             tr.replay.extend(real[: transitions - len(tr.replay)])
         while len(tr.stage_buffers) < transitions:

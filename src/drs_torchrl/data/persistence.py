@@ -54,6 +54,8 @@ def _check_memmap_dir(path: Path) -> None:
 
 
 def _filled(rb: ReplayBuffer):
+    if hasattr(rb, "snapshot_parts"):  # StageBuffers: one FIFO ring per stage
+        return rb.snapshot_parts()
     storage = rb.storage
     n = len(storage)
     if n == 0:

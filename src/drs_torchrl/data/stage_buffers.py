@@ -1,9 +1,12 @@
 """Stage buffers (Sec. 4.2-4.3, Algorithm 1 lines 2-3 and 7-15) as a TorchRL replay buffer.
 
-Every finished trajectory is filed by its stage index ``max_t stage(s_t)`` (Eq. 3). All stage
-buffers share one storage; :class:`StageSampler` keeps, per stage, the storage slots that belong to
-it and draws, for discriminator ``k``, positives from stages ``> k`` and negatives from stages
-``<= k``, each uniformly over the union (hence across stages in proportion to their sizes).
+Every finished trajectory is filed by its stage index ``max_t stage(s_t)`` (Eq. 3). The stage
+buffers ``B_0..B_N`` share one storage, in which :class:`StageRingWriter` gives each stage its own
+FIFO ring (so common failures never evict rare successes or demonstrations, and a full success
+buffer forgets its oldest successes, as with the authors' separate buffers). :class:`StageSampler`
+keeps, per stage, the storage slots that belong to it and draws, for discriminator ``k``, positives
+from stages ``> k`` and negatives from stages ``<= k``, each uniformly over the union (hence across
+stages in proportion to their sizes).
 
 Filing rules (the authors' public implementation): a failed trajectory (top stage ``j < N``) is cut
 right after the last step at which it was at stage ``j``; a successful one and every demonstration
@@ -18,8 +21,8 @@ from typing import Any
 import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
-from torchrl.data import LazyMemmapStorage, LazyTensorStorage, ReplayBuffer, RoundRobinWriter
-from torchrl.data.replay_buffers import Sampler
+from torchrl.data import LazyMemmapStorage, LazyTensorStorage, ReplayBuffer
+from torchrl.data.replay_buffers import Sampler, Writer
 
 TRAJ_STAGE_KEY = "traj_stage"
 
@@ -195,13 +198,91 @@ class StageSampler(Sampler):
         return f"{type(self).__name__}(num_stages={self.num_stages}, counts={self._counts.tolist()})"
 
 
+class StageRingWriter(Writer):
+    """A TorchRL writer giving each trajectory stage ``j`` its own FIFO ring of ``capacity`` slots.
+
+    Stage ``j`` owns storage slots ``[j * capacity, (j + 1) * capacity)``; an item is written to the
+    ring of its ``stage_key`` label, overwriting that stage's oldest item once the ring is full.
+    """
+
+    def __init__(self, num_stages: int, capacity: int, stage_key: str = TRAJ_STAGE_KEY):
+        super().__init__()
+        if capacity < 1:
+            raise ValueError("capacity per stage must be >= 1")
+        self.num_stages, self.capacity, self.stage_key = int(num_stages), int(capacity), stage_key
+        self._empty()
+
+    def _empty(self, empty_write_count: bool = True) -> None:
+        self._cursor = torch.zeros(self.num_stages + 1, dtype=torch.long)
+        self._filled = torch.zeros(self.num_stages + 1, dtype=torch.long)
+        if empty_write_count or not hasattr(self, "_write_count"):
+            self._write_count = 0
+
+    def add(self, data) -> int:
+        return int(self.extend(data.unsqueeze(0))[0])
+
+    def extend(self, data) -> torch.Tensor:
+        stages = data.get(self.stage_key).reshape(-1).long().cpu()
+        if stages.numel() == 0:
+            raise RuntimeError("StageRingWriter.extend got no items")
+        if stages.min() < 0 or stages.max() > self.num_stages:
+            raise ValueError(f"stage labels must lie in [0, {self.num_stages}]")
+        keep, index = [], []
+        C = self.capacity
+        for j in stages.unique().tolist():
+            items = (stages == j).nonzero().reshape(-1)[-C:]  # more than a ring holds: the last C win
+            n = items.numel()
+            index.append(j * C + (self._cursor[j] + torch.arange(n)) % C)
+            keep.append(items)
+            self._cursor[j] = (self._cursor[j] + n) % C
+            self._filled[j] = min(C, int(self._filled[j]) + n)
+        keep, index = torch.cat(keep), torch.cat(index)
+        order = keep.argsort()
+        keep, index = keep[order], index[order]
+        self._write_count += int(stages.numel())
+        high = max(len(self._storage), int(index.max()) + 1)
+        self._storage.set(index, data[keep] if keep.numel() < stages.numel() else data)
+        self._storage._len = high  # the storage reads slots below its length: rings leave gaps
+        return index
+
+    def filled(self) -> torch.Tensor:
+        """Items held by each stage's ring."""
+        return self._filled.clone()
+
+    def slots_by_age(self, stage: int) -> torch.Tensor:
+        """Storage slots of ``stage``, oldest first."""
+        C, n = self.capacity, int(self._filled[stage])
+        if n < C:
+            return stage * C + torch.arange(n)
+        return stage * C + (self._cursor[stage] + torch.arange(C)) % C
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"cursor": self._cursor.clone(), "filled": self._filled.clone(), "write_count": self._write_count}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self._cursor = state_dict["cursor"].clone()
+        self._filled = state_dict["filled"].clone()
+        self._write_count = int(state_dict["write_count"])
+
+    def dumps(self, path):
+        path = Path(path)
+        path.mkdir(parents=True, exist_ok=True)
+        torch.save(self.state_dict(), path / "stage_ring_writer.pt")
+
+    def loads(self, path):
+        self.load_state_dict(torch.load(Path(path) / "stage_ring_writer.pt", weights_only=True))
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(capacity_per_stage={self.capacity}, filled={self._filled.tolist()})"
+
+
 class StageBuffers(ReplayBuffer):
     """The stage buffers ``B_0..B_N`` of Algorithm 1: one TorchRL replay buffer, one storage.
 
     Args:
         num_stages: ``N``.
         keys: entries of each ``next`` state to keep (the reward's inputs and the stage index).
-        capacity: transitions held across all stages (oldest overwritten first).
+        capacity: transitions held by each stage buffer (its oldest overwritten first).
         stage_key: per-state stage index entry.
         batch_size: per-(stage, label) batch size of :meth:`sample_discriminator_batch`.
         scratch_dir: if given, a :class:`~torchrl.data.LazyMemmapStorage` on disk there, so very
@@ -218,8 +299,9 @@ class StageBuffers(ReplayBuffer):
         batch_size: int = 256,
         scratch_dir: str | None = None,
     ):
-        storage = LazyMemmapStorage(capacity, scratch_dir=scratch_dir) if scratch_dir else LazyTensorStorage(capacity)
-        super().__init__(storage=storage, sampler=StageSampler(num_stages), writer=RoundRobinWriter())
+        size = (int(num_stages) + 1) * int(capacity)  # lazily allocated: untouched slots cost no memory
+        storage = LazyMemmapStorage(size, scratch_dir=scratch_dir) if scratch_dir else LazyTensorStorage(size)
+        super().__init__(storage=storage, sampler=StageSampler(num_stages), writer=StageRingWriter(num_stages, capacity))
         self.disc_batch_size = int(batch_size)
         self.num_stages = int(num_stages)
         self.keys = list(dict.fromkeys([*keys, stage_key]))
@@ -229,6 +311,17 @@ class StageBuffers(ReplayBuffer):
     @property
     def stage_sampler(self) -> StageSampler:
         return self._sampler
+
+    def __len__(self) -> int:
+        return int(self._writer.filled().sum())
+
+    def stage_data(self, stage: int) -> TensorDictBase:
+        """The items filed under ``stage``, oldest first."""
+        return self._storage._storage[self._writer.slots_by_age(stage)]
+
+    def snapshot_parts(self) -> list[TensorDictBase]:
+        """Each stage's items, oldest first (what :func:`~drs_torchrl.data.persistence.dump_buffer` saves)."""
+        return [self.stage_data(j) for j in range(self.num_stages + 1) if self._writer.filled()[j] > 0]
 
     def add_trajectory(self, trajectory: TensorDictBase, *, demo: bool = False) -> int:
         """File one finished trajectory (a ``(T,)`` TensorDict of transitions with ``"next"``).
