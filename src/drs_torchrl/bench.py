@@ -133,7 +133,7 @@ def bench_checkpoint(transitions: int) -> dict:
         tr = Trainer(cfg, "learn", d)
         tr.run()  # 1024 real transitions, saved state included
         tr = Trainer(cfg, "learn", d, resume=True)
-        real = tr.replay[: len(tr.replay)]
+        real = tr.replay[: len(tr.replay)].clone()
         states = torch.cat(tr.stage_buffers.snapshot_parts())
         while len(tr.replay) < transitions:
             tr.replay.extend(real[: transitions - len(tr.replay)])

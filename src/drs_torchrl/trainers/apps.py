@@ -11,7 +11,9 @@ Configs live in the repository's ``conf/`` (or ``$DRS_CONF_DIR``). Examples::
 from __future__ import annotations
 
 import os
+import shutil
 import sys
+from datetime import datetime
 from pathlib import Path
 
 import hydra
@@ -26,12 +28,11 @@ def _run_dir_resolver(resume, default):
     return str(resume) if resume else default
 
 
-def _hydra_subdir_resolver(resume):
-    if not resume:
-        return ".hydra"
-    from datetime import datetime
+_STARTED = datetime.now().strftime("%Y%m%d-%H%M%S")  # one stamp per process: resolvers run more than once
 
-    return ".hydra-resume-" + datetime.now().strftime("%Y%m%d-%H%M%S")
+
+def _hydra_subdir_resolver(resume):
+    return ".hydra-resume-" + _STARTED if resume else ".hydra"
 
 
 OmegaConf.register_new_resolver("drs_run_dir", _run_dir_resolver, replace=True)
@@ -82,6 +83,7 @@ def _run(cfg: DictConfig, phase: str) -> None:
     from drs_torchrl.transforms.reward import RewardCheckpointError
 
     run_dir = HydraConfig.get().runtime.output_dir
+    record = Path(run_dir) / HydraConfig.get().output_subdir if HydraConfig.get().output_subdir else None
     try:
         resume = bool(cfg.get("resume"))
         if resume:
@@ -93,6 +95,8 @@ def _run(cfg: DictConfig, phase: str) -> None:
             ResumeError, KeyError, ValueError) as exc:
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
         print(f"drs-{phase}: error: {msg}", file=sys.stderr)
+        if record is not None and record.name.startswith(".hydra-resume-"):
+            shutil.rmtree(record, ignore_errors=True)  # a failed resume leaves the run as it was
         sys.exit(2)
     except NonFiniteError as exc:
         print(f"drs-{phase}: stopped: {exc}", file=sys.stderr)
