@@ -15,12 +15,15 @@ TORCH_VERSION=${TORCH_VERSION:-2.13.0}
 log() { printf '[setup] %s\n' "$*"; }
 
 have_gpu_vulkan() {
-  # an NVIDIA (or other vendor) ICD registered with the loader
+  # NVIDIA's driver registers its own ICD; Mesa's radv/anv need a real GPU render node.
+  # (Mesa's package ships intel/radeon ICD files even without such a GPU: they do not count.)
   local d
   for d in /usr/share/vulkan/icd.d /etc/vulkan/icd.d; do
-    [ -d "$d" ] || continue
-    if ls "$d" 2>/dev/null | grep -Eiq 'nvidia|radeon|intel|amd'; then return 0; fi
+    ls "$d" 2>/dev/null | grep -iq 'nvidia' && return 0
   done
+  if ls /dev/dri/renderD* >/dev/null 2>&1 && dpkg-query -W mesa-vulkan-drivers >/dev/null 2>&1; then
+    return 0
+  fi
   return 1
 }
 
@@ -28,7 +31,7 @@ have_recent_lavapipe() {
   local v
   v=$(dpkg-query -W -f='${Version}' mesa-vulkan-drivers 2>/dev/null || true)
   [ -n "$v" ] || return 1
-  dpkg --compare-versions "$v" ge 24 && [ -e /usr/share/vulkan/icd.d/lvp_icd.x86_64.json ] \
+  dpkg --compare-versions "$v" ge 24 && ls /usr/share/vulkan/icd.d/lvp_icd*.json >/dev/null 2>&1 \
     && dpkg-query -W libvulkan1 >/dev/null 2>&1
 }
 
@@ -79,5 +82,5 @@ fi
 log "installing drs-torchrl with its test extra"
 $py -m pip install -q -e ".[test]"
 log "checking the simulator"
-$py -m drs_torchrl.envs.doctor
+.venv/bin/drs-doctor
 log "done. Activate with: source .venv/bin/activate"

@@ -90,8 +90,7 @@ def load_buffer(rb: ReplayBuffer, path: str | Path) -> dict:
     if meta["len"] > rb.storage.max_size:
         raise ValueError(f"the saved buffer holds {meta['len']} transitions, more than this buffer's capacity {rb.storage.max_size}")
     for i in range(meta["parts"]):
-        part = load_memmap_checked(path / f"part{i}")
-        rb.extend(part.clone() if part.is_memmap() else part)
+        rb.extend(load_memmap_checked(path / f"part{i}"))  # copied page by page from the memory map
     if (path / "sampler.pt").is_file():
         rb._sampler.load_state_dict(torch.load(path / "sampler.pt", weights_only=False))
     return meta

@@ -390,7 +390,8 @@ class Trainer:
         interrupted = False
         t0, frames0 = time.perf_counter(), self.frames
         it = iter(self.collector) if self.collector is not None else iter(())
-        previous_sigterm = signal.signal(signal.SIGTERM, _raise_interrupt) if _in_main_thread() else None
+        stop = _StopRequest()
+        previous = stop.install()
         try:
             while True:
                 tc = time.perf_counter()
@@ -450,7 +451,12 @@ class Trainer:
                     self.save_checkpoints()
                     self.save_training_state()
                     self.logger.flush()
-        except KeyboardInterrupt:
+                if stop.signum is not None:  # SIGINT/SIGTERM: stop here, between two rounds
+                    interrupted = True
+                    tqdm.write(f"signal {stop.signum} at {self.frames} env steps: saving the training state in "
+                               f"{self.run_dir / 'checkpoints'}")
+                    break
+        except KeyboardInterrupt:  # a second Ctrl-C forces the stop wherever the loop was
             interrupted = True
             tqdm.write(f"interrupted at {self.frames} env steps: saving the training state in {self.run_dir / 'checkpoints'}")
         except NonFiniteError:
@@ -459,8 +465,7 @@ class Trainer:
             raise
         finally:
             bar.close()
-            if previous_sigterm is not None:
-                signal.signal(signal.SIGTERM, previous_sigterm)
+            stop.uninstall(previous)
         elapsed = time.perf_counter() - t0
         if window_frames:
             row = self._train_row(sac_stats, disc_stats, rewards, window_frames, window_updates,
@@ -579,12 +584,32 @@ def atomic_write_text(path: Path, text: str) -> None:
     os.replace(tmp, path)
 
 
-def _raise_interrupt(signum, frame):
-    raise KeyboardInterrupt(f"signal {signum}")
+class _StopRequest:
+    """SIGINT/SIGTERM handler of the training loop: it records the request and the loop stops at the
+    next batch boundary. Raising inside TorchRL/tensordict code (what Python's default SIGINT does) can
+    leave library context managers in a broken state; a second SIGINT still forces KeyboardInterrupt."""
+
+    def __init__(self):
+        self.signum: int | None = None
+
+    def __call__(self, signum, frame):
+        if self.signum is not None and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        self.signum = signum
+
+    def install(self) -> dict:
+        if not _in_main_thread():
+            return {}
+        return {sig: signal.signal(sig, self) for sig in (signal.SIGINT, signal.SIGTERM)}
+
+    @staticmethod
+    def uninstall(previous: dict) -> None:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 class _signals_deferred:
-    """Hold SIGINT/SIGTERM while a checkpoint is written; deliver them once it is complete."""
+    """Hold SIGINT/SIGTERM while a checkpoint is written; re-deliver them once it is complete."""
 
     def __enter__(self):
         self.pending = []
@@ -598,8 +623,8 @@ class _signals_deferred:
     def __exit__(self, *exc):
         for sig, handler in self.previous.items():
             signal.signal(sig, handler)
-        if self.pending and exc[0] is None:
-            raise KeyboardInterrupt(f"signal {self.pending[0]}")
+        for sig in dict.fromkeys(self.pending):
+            signal.raise_signal(sig)  # to the handler in place again (the loop's stop request)
         return False
 
 
