@@ -21,7 +21,10 @@ have_gpu_vulkan() {
   for d in /usr/share/vulkan/icd.d /etc/vulkan/icd.d; do
     ls "$d" 2>/dev/null | grep -iq 'nvidia' && return 0
   done
-  if ls /dev/dri/renderD* >/dev/null 2>&1 && dpkg-query -W mesa-vulkan-drivers >/dev/null 2>&1; then
+  # a real GPU with Mesa >= 24 (older Mesa can leave only a too-old lavapipe usable, e.g. on virtio-gpu)
+  local v
+  v=$(dpkg-query -W -f='${Version}' mesa-vulkan-drivers 2>/dev/null || true)
+  if ls /dev/dri/renderD* >/dev/null 2>&1 && [ -n "$v" ] && dpkg --compare-versions "$v" ge 24; then
     return 0
   fi
   return 1

@@ -106,13 +106,17 @@ def test_trajectory_longer_than_its_ring_keeps_its_last_states():
 
 
 def test_state_dict_round_trip():
-    sb = StageBuffers(N, ["observation"], capacity=100, batch_size=8)
+    sb = StageBuffers(N, ["observation"], capacity=4, batch_size=8)
     sb.add_trajectory(traj([0, 1, 1]))
     sb.add_trajectory(traj([0, 2, 3]))
-    sb2 = StageBuffers(N, ["observation"], capacity=100, batch_size=8)
+    sb.add_trajectory(traj([0, 0, 0], offset=10))  # stage 0's ring wraps (4 slots, 6 states)
+    sb2 = StageBuffers(N, ["observation"], capacity=4, batch_size=8)
     sb2.load_state_dict(sb.state_dict())
+    sb.add_trajectory(traj([0], offset=20))
+    sb2.add_trajectory(traj([0], offset=20))  # the restored cursor overwrites the same oldest slot
+    assert torch.equal(sb2.stage_data(0)["observation"], sb.stage_data(0)["observation"])
     assert sb2.stage_counts().tolist() == sb.stage_counts().tolist()
-    assert sb2.episodes_per_stage.tolist() == [0, 1, 0, 1]
+    assert sb2.episodes_per_stage.tolist() == [2, 1, 0, 1]
     for j in range(N + 1):
         assert torch.equal(sb2.stage_data(j)["observation"], sb.stage_data(j)["observation"])
 
@@ -133,3 +137,16 @@ def test_assembler_joins_episodes_across_batches_per_env():
     # two envs, batch shape (2, T)
     eps = asm.add(batch([[0, 1, 0, 0], [1, 0, 0, 1]]))
     assert [e.shape[0] for e in eps] == [2, 1, 3]
+
+
+def test_mixed_stages_in_one_extend_and_placeholders_point_at_filed_data():
+    sb = StageBuffers(N, ["observation"], capacity=10, batch_size=4)
+    data = TensorDict({"observation": torch.arange(6.0)[:, None].expand(6, OBS), "stage": torch.zeros(6, 1, dtype=torch.long),
+                       TRAJ_STAGE_KEY: torch.tensor([3, 0, 0, 3, 1, 0])}, [6])
+    sb.extend(data)
+    assert sb.stage_counts().tolist() == [3, 1, 0, 2]
+    assert sb.stage_data(3)["observation"][:, 0].tolist() == [0.0, 3.0]
+    only_top = StageBuffers(N, ["observation"], capacity=10, batch_size=4)
+    only_top.add_trajectory(traj([0, 3]), demo=True)
+    b = only_top.sample_discriminator_batch()  # no negatives anywhere: placeholders, marked invalid
+    assert not b["valid"].any() and (b[TRAJ_STAGE_KEY] == 3).all()

@@ -122,12 +122,12 @@ def _run_tabular_drs():
     dist = shortest_distances()
     for s in starts:
         assert dist[step(s, int(np.argmax(Q[INDEX[s]])))] == dist[s] - 1, f"the agent is not optimal at {s}"
-    # ... and greedy on the learned reward alone does too, from every start
+    # ... and greedy on the learned reward R(s, a) alone does too, from every start
     with torch.no_grad():
-        logits = reward.discriminators(all_sa).view(S, A)
+        r = reward.combine(reward.discriminators(all_sa), torch.zeros(S * A, 1, dtype=torch.long)).view(S, A)
     for start in starts:
         s, n = start, 0
         while s != GOAL and n <= S:
-            s = step(s, int(torch.argmax(logits[INDEX[s]])))
+            s = step(s, int(torch.argmax(r[INDEX[s]])))
             n += 1
         assert s == GOAL and n == dist[start], f"from {start}: {n} steps, shortest is {dist[start]}"

@@ -143,8 +143,9 @@ class StageSampler(Sampler):
     def _draw(self, stages: range, n: int) -> torch.Tensor:
         counts = self._counts[list(stages)]
         total = int(counts.sum())
-        if total == 0:
-            return torch.zeros(n, dtype=torch.long)
+        if total == 0:  # placeholder for an invalid side: any filed slot (never unwritten memory)
+            filled = next(lst for lst, c in zip(self._lists, self._counts) if c > 0)
+            return torch.full((n,), int(filled[0]), dtype=torch.long)
         r = torch.randint(total, (n,), generator=self._rng).numpy()
         cum = np.cumsum(counts)
         which = np.searchsorted(cum, r, side="right")
@@ -227,22 +228,24 @@ class StageRingWriter(Writer):
             raise RuntimeError("StageRingWriter.extend got no items")
         if stages.min() < 0 or stages.max() > self.num_stages:
             raise ValueError(f"stage labels must lie in [0, {self.num_stages}]")
-        keep, index = [], []
+        keep, index, cursor, filled = [], [], self._cursor.clone(), self._filled.clone()
         C = self.capacity
         for j in stages.unique().tolist():
             items = (stages == j).nonzero().reshape(-1)[-C:]  # more than a ring holds: the last C win
             n = items.numel()
-            index.append(j * C + (self._cursor[j] + torch.arange(n)) % C)
+            index.append(j * C + (cursor[j] + torch.arange(n)) % C)
             keep.append(items)
-            self._cursor[j] = (self._cursor[j] + n) % C
-            self._filled[j] = min(C, int(self._filled[j]) + n)
+            cursor[j] = (cursor[j] + n) % C
+            filled[j] = min(C, int(filled[j]) + n)
         keep, index = torch.cat(keep), torch.cat(index)
         order = keep.argsort()
         keep, index = keep[order], index[order]
-        self._write_count += int(stages.numel())
         high = max(len(self._storage), int(index.max()) + 1)
         self._storage.set(index, data[keep] if keep.numel() < stages.numel() else data)
+        # bookkeeping only once the data is in: an interrupted write leaves the rings as they were
         self._storage._len = high  # the storage reads slots below its length: rings leave gaps
+        self._cursor, self._filled = cursor, filled
+        self._write_count += int(stages.numel())
         return index
 
     def filled(self) -> torch.Tensor:

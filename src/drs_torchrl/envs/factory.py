@@ -47,9 +47,12 @@ def make_family_env(
     gpu = sim_backend in ("physx_cuda", "cuda", "gpu") or (sim_backend == "auto" and num_envs > 1 and torch.cuda.is_available())
     if num_envs > 1 and not gpu:
         # several CPU simulators: one ManiSkill env per TorchRL sub-env
-        make_one = functools.partial(ManiSkillEnv, family.env_id, family.all_info_keys, sim_backend="physx_cpu", **kwargs)
-        batched_cls = ParallelEnv if cpu_batching == "parallel" else SerialEnv
-        base = batched_cls(num_envs, make_one)
+        if cpu_batching == "parallel":
+            make_one = functools.partial(_worker_env, family.env_id, family.all_info_keys, sim_backend="physx_cpu", **kwargs)
+            base = ParallelEnv(num_envs, make_one)
+        else:
+            make_one = functools.partial(ManiSkillEnv, family.env_id, family.all_info_keys, sim_backend="physx_cpu", **kwargs)
+            base = SerialEnv(num_envs, make_one)
     else:
         base = ManiSkillEnv(family.env_id, family.all_info_keys, num_envs=num_envs, sim_backend=sim_backend, **kwargs)
     env = TransformedEnv(base, StageIndicator(
@@ -63,3 +66,12 @@ def make_family_env(
     if seed is not None:
         env.set_seed(seed)
     return env
+
+
+def _worker_env(*args, **kwargs) -> ManiSkillEnv:
+    """A ManiSkill env in a ParallelEnv worker: Ctrl-C goes to the whole process group, and the
+    trainer (not the worker) decides how to stop, so the worker ignores SIGINT."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    return ManiSkillEnv(*args, **kwargs)

@@ -43,8 +43,9 @@ class ResumeError(ValueError):
     """``resume=RUN_DIR`` that cannot be honoured."""
 
 
-def resume_config(run_dir: Path, phase: str, overrides: list[str]) -> DictConfig:
-    """The saved config of ``run_dir`` with this invocation's value overrides applied on top."""
+def resume_config(run_dir: Path, phase: str, overrides: list[str], composed: DictConfig | None = None) -> DictConfig:
+    """The saved config of ``run_dir`` with this invocation's value overrides applied on top
+    (values as Hydra parsed them into ``composed``, when given)."""
     saved_path = run_dir / "config.yaml"
     if not saved_path.is_file():
         raise ResumeError(f"cannot resume: {run_dir} is not a drs-torchrl run directory (no config.yaml)")
@@ -60,7 +61,8 @@ def resume_config(run_dir: Path, phase: str, overrides: list[str]) -> DictConfig
             raise ResumeError(f"cannot switch config group {key!r} of a run being resumed; start a new run instead")
         if OmegaConf.select(saved, key, default="__missing__") == "__missing__":
             raise ResumeError(f"override {key!r} does not exist in the config of {run_dir}")
-        OmegaConf.update(saved, key, yaml.safe_load(value), merge=True)
+        parsed = OmegaConf.select(composed, key) if composed is not None else yaml.safe_load(value)
+        OmegaConf.update(saved, key, parsed, merge=True)
     saved.resume = str(run_dir)
     return saved
 
@@ -88,7 +90,7 @@ def _run(cfg: DictConfig, phase: str) -> None:
         resume = bool(cfg.get("resume"))
         if resume:
             run_dir = str(Path(cfg.resume))
-            cfg = resume_config(Path(run_dir), phase, list(HydraConfig.get().overrides.task))
+            cfg = resume_config(Path(run_dir), phase, list(HydraConfig.get().overrides.task), composed=cfg)
         get_family(cfg.env.family)
         summary = train(cfg, phase, run_dir, resume=resume)
     except (ConfigError, RewardCheckpointError, MissingAssetError, VulkanUnavailableError, CudaUnavailableError, TrainingStateError,
@@ -97,6 +99,10 @@ def _run(cfg: DictConfig, phase: str) -> None:
         print(f"drs-{phase}: error: {msg}", file=sys.stderr)
         if record is not None and record.name.startswith(".hydra-resume-"):
             shutil.rmtree(record, ignore_errors=True)  # a failed resume leaves the run as it was
+            try:
+                record.parent.rmdir()  # only if Hydra made it for a path that was not a run
+            except OSError:
+                pass
         sys.exit(2)
     except NonFiniteError as exc:
         print(f"drs-{phase}: stopped: {exc}", file=sys.stderr)

@@ -290,7 +290,8 @@ class Trainer:
     def _write_training_state(self) -> Path:
         ck = self.run_dir / "checkpoints"
         final, tmp, old = ck / "state", ck / f"state.tmp-{os.getpid()}", ck / "state.old"
-        shutil.rmtree(tmp, ignore_errors=True)
+        for stale in ck.glob("state.tmp-*"):  # left by a process killed while saving
+            shutil.rmtree(stale, ignore_errors=True)
         tmp.mkdir(parents=True)
         payload = {
             "format": STATE_FORMAT,
@@ -370,11 +371,6 @@ class Trainer:
         next_log = (self.frames // log_every + 1) * log_every
         next_eval = (self.frames // eval_every + 1) * eval_every
         next_ckpt = (self.frames // ckpt_every + 1) * ckpt_every
-        sac_stats: list[TensorDict] = []
-        disc_stats: list[TensorDict] = []
-        rewards: list[torch.Tensor] = []
-        t_collect = t_update = 0.0
-        window_frames, window_updates, t_window = 0, 0, time.perf_counter()
         summary: dict[str, Any] = {"phase": self.phase, "run_dir": str(self.run_dir), "resumed_from": self.resumed_from}
         remaining = total - self.frames
         if remaining > 0:
@@ -387,11 +383,25 @@ class Trainer:
             )
         bar = tqdm(total=total, initial=self.frames, desc=f"drs-{self.phase}", unit="step",
                    disable=not cfg.logger.progress_bar, dynamic_ncols=True)
-        interrupted = False
         t0, frames0 = time.perf_counter(), self.frames
         it = iter(self.collector) if self.collector is not None else iter(())
         stop = _StopRequest()
-        previous = stop.install()
+        previous = stop.install()  # stays until run() returns: the final eval and saves stop cleanly too
+        try:
+            return self._run_loop(stop, summary, total, log_every, eval_every, ckpt_every, next_log, next_eval, next_ckpt,
+                                  it, bar, t0, frames0)
+        finally:
+            stop.uninstall(previous)
+
+    def _run_loop(self, stop, summary, total, log_every, eval_every, ckpt_every, next_log, next_eval, next_ckpt,
+                  it, bar, t0, frames0) -> dict[str, Any]:
+        cfg, a = self.cfg, self.cfg.algo
+        sac_stats: list[TensorDict] = []
+        disc_stats: list[TensorDict] = []
+        rewards: list[torch.Tensor] = []
+        t_collect = t_update = 0.0
+        window_frames, window_updates, t_window = 0, 0, time.perf_counter()
+        interrupted = forced = False
         try:
             while True:
                 tc = time.perf_counter()
@@ -457,15 +467,15 @@ class Trainer:
                                f"{self.run_dir / 'checkpoints'}")
                     break
         except KeyboardInterrupt:  # a second Ctrl-C forces the stop wherever the loop was
-            interrupted = True
-            tqdm.write(f"interrupted at {self.frames} env steps: saving the training state in {self.run_dir / 'checkpoints'}")
+            interrupted = forced = True
+            tqdm.write(f"forced stop at {self.frames} env steps: the last periodic training state is kept "
+                       "(the buffers may be mid-write, so nothing is saved now)")
         except NonFiniteError:
             bar.close()
             self.close()
             raise
         finally:
             bar.close()
-            stop.uninstall(previous)
         elapsed = time.perf_counter() - t0
         if window_frames:
             row = self._train_row(sac_stats, disc_stats, rewards, window_frames, window_updates,
@@ -477,8 +487,11 @@ class Trainer:
             if ev:
                 self.logger.log("eval", self.frames, ev)
                 summary["last_eval"] = ev
-        summary["checkpoints"] = self.save_checkpoints()
-        self.save_training_state()
+        if not forced:
+            summary["checkpoints"] = self.save_checkpoints()
+            self.save_training_state()
+        else:
+            summary["frames_at_last_state"] = int(self.frames)  # informational; resume uses the saved state
         summary.update(
             frames=self.frames, updates=self.updates, disc_updates=self.disc_updates,
             wall_time_s=elapsed, env_steps_per_s=(self.frames - frames0) / max(elapsed, 1e-9), interrupted=interrupted,
