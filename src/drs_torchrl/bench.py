@@ -6,7 +6,9 @@ Measures, on the same task and machine:
     random policy, transitions into the replay buffer, episodes assembled and filed into the stage
     buffers;
   * ``learn_<algo>``: phase 1 (SAC + discriminators, UTD of the config) after learning starts,
-    env steps/s and gradient updates/s, for each algo config given.
+    env steps/s and gradient updates/s, for each algo config given;
+  * ``plain``: the same algorithm as a plain single-file PyTorch loop (``drs_torchrl.plain_loop``)
+    at each config's batch size, side by side, and the pipeline's speed ratio over it.
 
 Writes ``results/bench/bench.json`` and ``results/bench/bench.md``. Usage::
 
@@ -163,6 +165,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--learn-frames", type=int, default=2048)
     p.add_argument("--algos", nargs="*", default=["sac_cpu", "sac_paper"])
     p.add_argument("--out", default="results/bench")
+    p.add_argument("--no-plain", action="store_true", help="skip the plain single-file loop baseline")
     p.add_argument("--checkpoint", type=int, default=0, metavar="N",
                    help="also measure the training-state checkpoint of a run holding N transitions (e.g. 1000000)")
     a = p.parse_args(argv)
@@ -187,6 +190,16 @@ def main(argv: list[str] | None = None) -> int:
         r = bench_learn(algo, a.learn_frames, [f"env.family={a.family}"])
         res["learn"].append(r)
         print(f"  {r['env_steps_per_s']:.1f} env steps/s, {r['updates_per_s']:.1f} updates/s", flush=True)
+    res["plain"] = []
+    if not a.no_plain:
+        from drs_torchrl.plain_loop import run_plain_drs
+
+        for r in res["learn"]:
+            print(f"plain single-file loop, batch {r['batch_size']} ...", flush=True)
+            q = run_plain_drs(fam.env_id, kw, fam.stage_keys, r["batch_size"], a.learn_frames)
+            q["pipeline_over_plain"] = r["env_steps_per_s"] / q["env_steps_per_s"]
+            res["plain"].append(q)
+            print(f"  {q['env_steps_per_s']:.1f} env steps/s (pipeline {q['pipeline_over_plain']:.2f}x)", flush=True)
     if a.checkpoint:
         print(f"checkpoint of a {a.checkpoint}-transition run ...", flush=True)
         res["checkpoint"] = c = bench_checkpoint(a.checkpoint)
@@ -203,6 +216,12 @@ def main(argv: list[str] | None = None) -> int:
     ]
     for r in res["learn"]:
         lines.append(f"| phase 1, {r['algo']} (batch {r['batch_size']}, UTD {r['utd']}) | {r['env_steps_per_s']:.1f} | {r['updates_per_s']:.1f} |")
+    for q in res["plain"]:
+        lines.append(f"| plain single-file PyTorch DrS loop, same algorithm (batch {q['batch_size']}, UTD 0.5) | "
+                     f"{q['env_steps_per_s']:.1f} | - |")
+    if res["plain"]:
+        lines += ["", "Pipeline over the plain loop, phase-1 env steps/s at the same config: " + ", ".join(
+            f"batch {q['batch_size']}: {q['pipeline_over_plain']:.2f}x" for q in res["plain"]) + "."]
     if "checkpoint" in res:
         c = res["checkpoint"]
         lines += ["", f"Training-state checkpoint of a run holding {c['transitions']:,} transitions (replay buffer and stage buffers "
