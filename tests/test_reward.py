@@ -1,5 +1,4 @@
 """The DrS reward (Eq. 4): the stage-ordering guarantee, where it applies, and checkpoints."""
-import math
 
 import pytest
 import torch

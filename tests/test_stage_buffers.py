@@ -47,7 +47,7 @@ def test_filing_by_highest_stage_with_truncation():
 
 def test_positives_and_negatives_respect_stage_split():
     sb = StageBuffers(N, ["observation"], capacity=10_000, batch_size=64)
-    for k, stages in enumerate([[0] * 5, [0, 1, 1], [1, 2, 2, 2], [1, 2, 3]]):
+    for stages in ([0] * 5, [0, 1, 1], [1, 2, 2, 2], [1, 2, 3]):
         for _ in range(3):
             sb.add_trajectory(traj(stages))
     batch = sb.sample_discriminator_batch()
@@ -64,7 +64,7 @@ def test_sampling_is_proportional_to_stage_sizes():
     sizes = {0: 1000, 1: 3000, 2: 500, 3: 1500}
     for s, n in sizes.items():
         stages = [s] * n
-        sb.add_trajectory(traj(stages) if s == N else traj(stages))
+        sb.add_trajectory(traj(stages))
     batch = sb.sample_discriminator_batch()
     ts = batch[TRAJ_STAGE_KEY]
     for k in range(N):
