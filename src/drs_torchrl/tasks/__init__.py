@@ -3,7 +3,8 @@
 A task family (Sec. 3) is a set of task variants that share a success criterion and differ in
 objects, initial states or dynamics. Everything downstream (env construction, the stage transform,
 the reward's inputs, the train/test split) reads a :class:`TaskFamily` instead of special-casing
-tasks. ``get_family(name)`` looks one up; ``register_family`` adds one.
+tasks. ``get_family(name)`` looks one up; ``register_family`` adds one. Each family lives in its own
+module of this package (``tasks/pick_cube.py``...), imported at the bottom of this file.
 """
 from __future__ import annotations
 
@@ -91,22 +92,5 @@ def list_families() -> list[str]:
     return sorted(_FAMILIES)
 
 
-register_family(
-    TaskFamily(
-        name="pick_cube",
-        env_id="PickCubeSized-v1",
-        description="Panda picks a cube and holds it at a goal in mid-air (Pick-and-Place, Appendix A)",
-        # grasped -> placed (within goal_thresh of the goal) -> placed and static (= success)
-        stage_keys=("is_grasped", "is_obj_placed", "success"),
-        info_keys=("is_robot_static",),
-        variants={
-            "cube_2cm": {"cube_half_size": 0.02},
-            "cube_1_5cm": {"cube_half_size": 0.015},
-            "cube_2_5cm": {"cube_half_size": 0.025},
-            "cube_1_75cm": {"cube_half_size": 0.0175},
-        },
-        train_variants=("cube_2cm", "cube_2_5cm"),
-        test_variants=("cube_1_5cm", "cube_1_75cm"),
-        extra={"demo_solver": "mani_skill.examples.motionplanning.panda.solutions.pick_cube:solve"},
-    )
-)
+# one module per family; each registers itself on import
+from drs_torchrl.tasks import pick_cube  # noqa: E402,F401

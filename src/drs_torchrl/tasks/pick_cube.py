@@ -1,0 +1,22 @@
+"""``pick_cube``: Panda picks a cube of one of four sizes and holds it at a goal (Appendix A)."""
+from drs_torchrl.tasks import TaskFamily, register_family
+
+register_family(
+    TaskFamily(
+        name="pick_cube",
+        env_id="PickCubeSized-v1",
+        description="Panda picks a cube and holds it at a goal in mid-air (Pick-and-Place, Appendix A)",
+        # grasped -> placed (within goal_thresh of the goal) -> placed and static (= success)
+        stage_keys=("is_grasped", "is_obj_placed", "success"),
+        info_keys=("is_robot_static",),
+        variants={
+            "cube_2cm": {"cube_half_size": 0.02},
+            "cube_1_5cm": {"cube_half_size": 0.015},
+            "cube_2_5cm": {"cube_half_size": 0.025},
+            "cube_1_75cm": {"cube_half_size": 0.0175},
+        },
+        train_variants=("cube_2cm", "cube_2_5cm"),
+        test_variants=("cube_1_5cm", "cube_1_75cm"),
+        extra={"demo_solver": "mani_skill.examples.motionplanning.panda.solutions.pick_cube:solve"},
+    )
+)
