@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import sys
 import time
@@ -46,33 +47,118 @@ def bench_raw_sim(env_id: str, steps: int, env_kwargs: dict, control_mode: str) 
     return steps / dt
 
 
-def bench_collect(family, steps: int) -> float:
-    from torchrl.collectors import Collector
+def bench_collect(family, steps: int, background: bool = False) -> float:
+    """Collection without learning: Collector + env + StageIndicator, random policy, transitions
+    into the replay buffer, episodes assembled and filed into the stage buffers. ``background``:
+    the env steps in a TorchRL ``AsyncCollector`` worker while this process files the data."""
+    import functools
+
+    from torchrl.collectors import AsyncCollector, Collector
     from torchrl.data import LazyTensorStorage, ReplayBuffer
 
     from drs_torchrl.data import StageBuffers, TrajectoryAssembler
     from drs_torchrl.envs.factory import make_family_env
 
-    env = make_family_env(family, "train", seed=0)
+    make = functools.partial(make_family_env, family, "train", seed=0)
     rb = ReplayBuffer(storage=LazyTensorStorage(steps + 64))
     sb = StageBuffers(family.num_stages, list(family.reward_in_keys), capacity=steps + 64)
     asm = TrajectoryAssembler()
-    collector = Collector(env, None, frames_per_batch=64, total_frames=steps, auto_register_policy_transforms=False)
-    t = time.perf_counter()
-    n = 0
+    warmup = 128  # the worker's start (imports, simulator build) is not part of the rate
+    if background:
+        collector = AsyncCollector(make, None, frames_per_batch=64, total_frames=steps + warmup)
+    else:
+        collector = Collector(make(), None, frames_per_batch=64, total_frames=steps + warmup,
+                              auto_register_policy_transforms=False)
+    n, t = 0, None
     for batch in collector:
         rb.extend(batch.reshape(-1))
         for ep in asm.add(batch):
             sb.add_trajectory(ep)
         n += batch.numel()
+        if t is None and n >= warmup:
+            t, n = time.perf_counter(), 0
     dt = time.perf_counter() - t
     collector.shutdown()
-    env.close()
     return n / dt
 
 
-def bench_learn(algo: str, frames: int, overrides: list[str]) -> dict:
-    """Phase-1 speed after learning starts: env steps/s and updates/s over ``frames`` steps."""
+def bench_components(algo: str, sizes: list[int], batch_reps: int = 50) -> dict:
+    """Per-call times of the learner's parts on real PickCube data (phase 1, ``algo``):
+
+    * ``sac_update_ms``: one SAC update (replay sample, reward recomputation, SACLoss, backward,
+      three Adam steps, target update), eager and, if it compiles, with ``algo.compile=true``;
+    * ``reward_recompute_ms``: the learned reward (all discriminators, one pass) on a SAC batch;
+    * ``disc_update_ms``: one discriminator update (a batch per discriminator from the stage buffers);
+    * ``stage_sample_ms`` per stage-buffer size: drawing one discriminator batch, and filing one
+      50-step episode, as the stage buffers grow from 1e3 to 1e6 transitions (must stay flat).
+    """
+    import tempfile
+
+    from hydra import compose, initialize_config_dir
+
+    from drs_torchrl.trainers.apps import conf_dir
+    from drs_torchrl.trainers.loop import Trainer
+
+    def per_call_ms(fn, n=batch_reps, warm=5):
+        for _ in range(warm):
+            fn()
+        t = time.perf_counter()
+        for _ in range(n):
+            fn()
+        return (time.perf_counter() - t) / n * 1e3
+
+    top = max(sizes)
+    with initialize_config_dir(config_dir=conf_dir(), version_base=None):
+        cfg = compose("learn", overrides=[f"algo={algo}", "total_frames=2048", "algo.learning_starts=100000",
+                                          "eval.episodes=0", "logger.progress_bar=false", "logger.tensorboard=false",
+                                          f"reward.stage_buffer_size={top}", "checkpoint_interval=1000000000"])
+    out: dict = {"algo": algo, "batch_size": int(cfg.algo.batch_size)}
+    with tempfile.TemporaryDirectory() as d:
+        tr = Trainer(cfg, "learn", d)
+        tr.run()  # 2048 real transitions in the replay and stage buffers
+        tr = Trainer(cfg, "learn", d, resume=True)
+        out["sac_update_ms"] = per_call_ms(tr._sac_step)
+        sample = tr.replay.sample()
+        nxt = sample.get("next")
+        out["reward_recompute_ms"] = per_call_ms(lambda: tr.learned.reward(nxt), n=200)
+        out["disc_update_ms"] = per_call_ms(tr._disc_step, n=200)
+        states = torch.cat(tr.stage_buffers.snapshot_parts())
+        episode = tr.stage_buffers.stage_data(0)[:50].clone()
+        sweep = []
+        for size in sorted(sizes):
+            while len(tr.stage_buffers) < size:
+                tr.stage_buffers.extend(states[: size - len(tr.stage_buffers)])
+            tr.stage_buffers.sample_discriminator_batch()  # sync the new slots' labels (once)
+            ms = per_call_ms(tr.stage_buffers.sample_discriminator_batch, n=200)
+            from tensordict import TensorDict
+
+            ep = TensorDict({"next": episode}, batch_size=episode.shape)
+            file_ms = per_call_ms(lambda: (tr.stage_buffers.add_trajectory(ep), tr.stage_buffers.sample_discriminator_batch()), n=50)
+            sweep.append({"transitions": len(tr.stage_buffers), "sample_ms": ms, "file_episode_and_sample_ms": file_ms})
+        out["stage_sample"] = sweep
+        tr.close()
+    cfg.algo.compile = True
+    with tempfile.TemporaryDirectory() as d:
+        try:
+            tr = Trainer(cfg, "learn", d)
+            tr.run()
+            tr = Trainer(cfg, "learn", d, resume=True)
+            t = time.perf_counter()
+            tr._sac_step()
+            out["compile_s"] = time.perf_counter() - t
+            out["sac_update_compiled_ms"] = per_call_ms(tr._sac_step)
+            tr.close()
+        except Exception as exc:  # reported, not hidden: the eager numbers stand
+            out["compile_error"] = f"{type(exc).__name__}: {exc}"[:500]
+    return out
+
+
+COLLECTORS = {"inproc": "torchrl.collectors.Collector", "background": "torchrl.collectors.AsyncCollector"}
+
+
+def bench_learn(algo: str, frames: int, overrides: list[str], collector: str = "inproc") -> dict:
+    """Phase-1 speed after learning starts: env steps/s and updates/s over ``frames`` steps, with the
+    collector in this process (``inproc``) or in a background process (``background``)."""
     import tempfile
 
     from hydra import compose, initialize_config_dir
@@ -81,7 +167,7 @@ def bench_learn(algo: str, frames: int, overrides: list[str]) -> dict:
     from drs_torchrl.trainers.loop import Trainer
 
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
-        cfg = compose("learn", overrides=[f"algo={algo}", *overrides])
+        cfg = compose("learn", overrides=[f"algo={algo}", f"algo.collector._target_={COLLECTORS[collector]}", *overrides])
     start = int(cfg.algo.learning_starts)
     cfg.total_frames = start + frames
     cfg.eval.interval = 10**9
@@ -101,6 +187,8 @@ def bench_learn(algo: str, frames: int, overrides: list[str]) -> dict:
     r = timed[-1]
     return {
         "algo": algo,
+        "collector": collector,
+        "frac_time_updating": float(r["frac_time_updating"]),
         "batch_size": int(cfg.algo.batch_size),
         "utd": float(cfg.algo.utd),
         "frames_timed": frames,
@@ -164,6 +252,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--collect-steps", type=int, default=3008)
     p.add_argument("--learn-frames", type=int, default=2048)
     p.add_argument("--algos", nargs="*", default=["sac_cpu", "sac_paper"])
+    p.add_argument("--collectors", nargs="*", default=["inproc", "background"], choices=sorted(COLLECTORS))
+    p.add_argument("--stage-sizes", nargs="*", type=int, default=[1_000, 10_000, 100_000, 1_000_000],
+                   help="stage-buffer sizes for the sampling-time sweep (empty: skip the component timings)")
     p.add_argument("--out", default="results/bench")
     p.add_argument("--no-plain", action="store_true", help="skip the plain single-file loop baseline")
     p.add_argument("--checkpoint", type=int, default=0, metavar="N",
@@ -173,33 +264,47 @@ def main(argv: list[str] | None = None) -> int:
 
     fam = get_family(a.family)
     kw = fam.variant_kwargs("train")
+    threads = torch.get_num_threads()
     res: dict = {
         "command": "drs-bench " + " ".join(sys.argv[1:] if argv is None else argv),
-        "machine": {"cpus": torch.get_num_threads(), "platform": platform.platform(), "torch": torch.__version__,
-                    "cuda": torch.cuda.is_available()},
+        "machine": {"cpus": os.cpu_count(), "torch_threads": threads, "platform": platform.platform(),
+                    "torch": torch.__version__, "cuda": torch.cuda.is_available()},
         "family": a.family,
     }
     print("raw simulator ...", flush=True)
     res["raw_sim_steps_per_s"] = bench_raw_sim(fam.env_id, a.raw_steps, kw, fam.control_mode)
-    print(f"  {res['raw_sim_steps_per_s']:.0f} steps/s\ncollection only ...", flush=True)
-    res["collect_steps_per_s"] = bench_collect(fam, a.collect_steps)
-    print(f"  {res['collect_steps_per_s']:.0f} steps/s", flush=True)
+    print(f"  {res['raw_sim_steps_per_s']:.0f} steps/s", flush=True)
+    res["collect"] = {}
+    for c in a.collectors:
+        print(f"collection only, {c} collector ...", flush=True)
+        res["collect"][c] = bench_collect(fam, a.collect_steps, background=(c == "background"))
+        torch.set_num_threads(threads)  # a background collector lowers this process's threads while it runs
+        print(f"  {res['collect'][c]:.0f} steps/s ({res['collect'][c] / res['raw_sim_steps_per_s']:.2f}x raw)", flush=True)
     res["learn"] = []
     for algo in a.algos:
-        print(f"phase 1, {algo} ...", flush=True)
-        r = bench_learn(algo, a.learn_frames, [f"env.family={a.family}"])
-        res["learn"].append(r)
-        print(f"  {r['env_steps_per_s']:.1f} env steps/s, {r['updates_per_s']:.1f} updates/s", flush=True)
+        for c in a.collectors:
+            print(f"phase 1, {algo}, {c} collector ...", flush=True)
+            r = bench_learn(algo, a.learn_frames, [f"env.family={a.family}"], collector=c)
+            torch.set_num_threads(threads)
+            res["learn"].append(r)
+            print(f"  {r['env_steps_per_s']:.1f} env steps/s, {r['updates_per_s']:.1f} updates/s", flush=True)
     res["plain"] = []
     if not a.no_plain:
         from drs_torchrl.plain_loop import run_plain_drs
 
-        for r in res["learn"]:
-            print(f"plain single-file loop, batch {r['batch_size']} ...", flush=True)
-            q = run_plain_drs(fam.env_id, kw, fam.stage_keys, r["batch_size"], a.learn_frames)
-            q["pipeline_over_plain"] = r["env_steps_per_s"] / q["env_steps_per_s"]
+        for bs in dict.fromkeys(r["batch_size"] for r in res["learn"]):
+            print(f"plain single-file loop, batch {bs} ...", flush=True)
+            q = run_plain_drs(fam.env_id, kw, fam.stage_keys, bs, a.learn_frames)
+            for r in res["learn"]:
+                if r["batch_size"] == bs:
+                    r["over_plain"] = r["env_steps_per_s"] / q["env_steps_per_s"]
             res["plain"].append(q)
-            print(f"  {q['env_steps_per_s']:.1f} env steps/s (pipeline {q['pipeline_over_plain']:.2f}x)", flush=True)
+            print(f"  {q['env_steps_per_s']:.1f} env steps/s", flush=True)
+    res["components"] = []
+    if a.stage_sizes:
+        for algo in a.algos:
+            print(f"component timings, {algo} ...", flush=True)
+            res["components"].append(bench_components(algo, a.stage_sizes))
     if a.checkpoint:
         print(f"checkpoint of a {a.checkpoint}-transition run ...", flush=True)
         res["checkpoint"] = c = bench_checkpoint(a.checkpoint)
@@ -207,28 +312,44 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "bench.json").write_text(json.dumps(res, indent=2))
+    md = render_markdown(res)
+    (out / "bench.md").write_text(md)
+    print(md)
+    return 0
+
+
+def render_markdown(res: dict) -> str:
+    m = res["machine"]
+    raw = res["raw_sim_steps_per_s"]
     lines = [
-        f"# drs-bench on {a.family}", "", f"Command: `{res['command']}`", "",
-        f"Machine: {res['machine']['cpus']} torch threads, {res['machine']['platform']}, torch {res['machine']['torch']}, CUDA {res['machine']['cuda']}", "",
-        "| measurement | env steps/s | updates/s |", "|---|---|---|",
-        f"| raw simulator (gymnasium, random actions, resets) | {res['raw_sim_steps_per_s']:.0f} | - |",
-        f"| collection only (Collector + transforms + replay + stage buffers) | {res['collect_steps_per_s']:.0f} | - |",
+        f"# drs-bench on {res['family']}", "", f"Command: `{res['command']}`", "",
+        f"Machine: {m['cpus']} CPUs, {m['torch_threads']} torch threads, {m['platform']}, torch {m['torch']}, CUDA {m['cuda']}", "",
+        "| measurement | env steps/s | updates/s | vs plain loop |", "|---|---|---|---|",
+        f"| raw simulator (gymnasium, random actions, resets) | {raw:.0f} | - | - |",
     ]
+    for c, v in res["collect"].items():
+        lines.append(f"| collection only, {c} collector (env + transforms + replay + stage buffers) | {v:.0f} ({v / raw:.2f}x raw) | - | - |")
     for r in res["learn"]:
-        lines.append(f"| phase 1, {r['algo']} (batch {r['batch_size']}, UTD {r['utd']}) | {r['env_steps_per_s']:.1f} | {r['updates_per_s']:.1f} |")
+        ratio = f"{r['over_plain']:.2f}x" if "over_plain" in r else "-"
+        lines.append(f"| phase 1, {r['algo']} (batch {r['batch_size']}, UTD {r['utd']}), {r['collector']} collector | "
+                     f"{r['env_steps_per_s']:.1f} | {r['updates_per_s']:.1f} | {ratio} |")
     for q in res["plain"]:
         lines.append(f"| plain single-file PyTorch DrS loop, same algorithm (batch {q['batch_size']}, UTD 0.5) | "
-                     f"{q['env_steps_per_s']:.1f} | - |")
-    if res["plain"]:
-        lines += ["", "Pipeline over the plain loop, phase-1 env steps/s at the same config: " + ", ".join(
-            f"batch {q['batch_size']}: {q['pipeline_over_plain']:.2f}x" for q in res["plain"]) + "."]
+                     f"{q['env_steps_per_s']:.1f} | {q['updates_per_s_overall']:.1f} | 1.00x |")
+    for c in res.get("components", []):
+        lines += ["", f"Learner parts, {c['algo']} (batch {c['batch_size']}), ms per call:", "",
+                  f"- SAC update (sample, reward recomputation, loss, backward, Adam, target update): {c['sac_update_ms']:.1f} ms eager"
+                  + (f", {c['sac_update_compiled_ms']:.1f} ms with `algo.compile=true` (compiled in {c['compile_s']:.0f} s)"
+                     if "sac_update_compiled_ms" in c else f" (compile failed: {c.get('compile_error')})"),
+                  f"- reward recomputation on one SAC batch (all discriminators, one pass): {c['reward_recompute_ms']:.2f} ms",
+                  f"- discriminator update (one batch per stage): {c['disc_update_ms']:.2f} ms", "",
+                  "| stage-buffer transitions | draw one discriminator batch (ms) | file a 50-step episode + draw (ms) |", "|---|---|---|"]
+        lines += [f"| {s['transitions']:,} | {s['sample_ms']:.3f} | {s['file_episode_and_sample_ms']:.3f} |" for s in c["stage_sample"]]
     if "checkpoint" in res:
         c = res["checkpoint"]
         lines += ["", f"Training-state checkpoint of a run holding {c['transitions']:,} transitions (replay buffer and stage buffers "
                   f"each): {c['bytes'] / 1e6:.0f} MB on disk, written in {c['write_s']:.1f} s, resumed (loaded) in {c['resume_s']:.1f} s."]
-    (out / "bench.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
-    return 0
+    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ their own modules and are usable without it.
 """
 from __future__ import annotations
 
+import functools
 import json
 import os
 import random
@@ -21,9 +22,10 @@ from typing import Any
 
 import numpy as np
 import torch
-from hydra.utils import instantiate
+from hydra.utils import get_class, instantiate
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDict
+from torchrl.collectors import MultiCollector
 from torchrl.envs.transforms import DeviceCastTransform
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm.auto import tqdm
@@ -129,6 +131,7 @@ class Trainer:
             control_mode=cfg.env.control_mode,
             max_episode_steps=cfg.env.max_episode_steps,
         )
+        self._env_kwargs = env_kwargs
         self.env = make_family_env(family, cfg.env.split, seed=int(cfg.seed), **env_kwargs)
         # evaluation runs one episode at a time in a single env
         self.eval_env = make_family_env(
@@ -161,6 +164,9 @@ class Trainer:
         self.loss = instantiate(a.loss)(actor_network=self.actor, qvalue_network=self.qvalue, action_spec=self.env.action_spec)
         self.loss.to(self.device)
         self.loss.make_value_estimator(gamma=float(a.gamma))
+        # algo.compile: the SAC loss's forward (and, through AOTAutograd, its backward) compiled with
+        # torch.compile; the module, its parameters and checkpoints stay those of self.loss
+        self._loss_fn = torch.compile(self.loss, **(a.get("compile_kwargs") or {})) if a.get("compile") else self.loss
         self.target_updater = instantiate(a.target_update)(self.loss)
         self.optim_actor = instantiate(a.optim)(list(self.loss.actor_network_params.values(True, True)))
         self.optim_critic = instantiate(a.optim)(list(self.loss.qvalue_network_params.values(True, True)))
@@ -363,6 +369,34 @@ class Trainer:
                 f"without saving, so the last good checkpoint in {self.run_dir / 'checkpoints'} is intact"
             )
 
+    @property
+    def collects_in_background(self) -> bool:
+        """True when the configured collector steps the env in its own process (TorchRL's
+        ``AsyncCollector``/``MultiAsyncCollector``/``MultiSyncCollector``), overlapping simulation with
+        the SAC and discriminator updates of this process."""
+        return issubclass(get_class(self.cfg.algo.collector._target_), MultiCollector)
+
+    def _collector_env(self):
+        """The env for the collector: the trainer's own env for an in-process collector, else a
+        picklable constructor of the same env, which the collector's worker process calls.
+
+        The worker env is seeded like the trainer's (``seed``; ``seed + 1 + frames`` on resume) and
+        carries the same transforms (stage labelling, and a frozen reward in phase 2). The worker
+        ignores SIGINT: Ctrl-C reaches the whole process group, and the trainer decides how to stop.
+        """
+        if not self.collects_in_background:
+            return self.env
+        if self.device.type != "cpu":
+            raise ConfigError(
+                f"a background collector process with a {self.device} learner is not supported; with a GPU use "
+                "algo.collector._target_=torchrl.collectors.Collector (ManiSkill's GPU simulation is batched in-process)"
+            )
+        seed = int(self.cfg.seed) + (1 + self.frames if self.resumed_from is not None else 0)
+        transforms = (self.reward.frozen.clone(),) if self.reward.frozen is not None else ()
+        make = functools.partial(make_family_env, self.family, self.cfg.env.split, seed=seed,
+                                 transforms=transforms, **self._env_kwargs)
+        return functools.partial(_background_worker_env, make)
+
     def run(self) -> dict[str, Any]:
         cfg, a = self.cfg, self.cfg.algo
         total = int(cfg.total_frames)
@@ -375,7 +409,7 @@ class Trainer:
         remaining = total - self.frames
         if remaining > 0:
             self.collector = instantiate(a.collector)(
-                self.env,
+                self._collector_env(),
                 self.actor,
                 total_frames=remaining,
                 init_random_frames=max(0, int(a.learning_starts) - self.frames),
@@ -402,6 +436,7 @@ class Trainer:
         t_collect = t_update = 0.0
         window_frames, window_updates, t_window = 0, 0, time.perf_counter()
         interrupted = forced = False
+        background = self.collector is not None and self.collects_in_background
         try:
             while True:
                 tc = time.perf_counter()
@@ -437,6 +472,8 @@ class Trainer:
                         sac_stats.append(out)
                         rewards.append(r)
                     window_updates += k
+                    if k and background:  # the worker collects the next batch with the updated actor
+                        self.collector.update_policy_weights_()
                 t_update += time.perf_counter() - tu
                 bar.update(n)
 
@@ -505,7 +542,7 @@ class Trainer:
 
     def _sac_step(self) -> tuple[TensorDict, torch.Tensor]:
         sample = self.replay.sample().to(self.device)
-        out = self.loss(sample)
+        out = self._loss_fn(sample)
         total = out["loss_actor"] + out["loss_qvalue"] + out["loss_alpha"]
         self._check_finite("SAC loss", total.detach())
         for opt in (self.optim_actor, self.optim_critic, self.optim_alpha):
@@ -524,6 +561,10 @@ class Trainer:
             "env_steps_per_s": frames / max(dt, 1e-9),
             "updates_per_s": updates / max(t_update, 1e-9) if updates else 0.0,
             "collect_steps_per_s": frames / max(t_collect, 1e-9),
+            # where the trainer's wall time went: waiting for the collector (all of the simulation, for
+            # an in-process collector; only the part not overlapped, for a background one) vs updating
+            "frac_time_waiting_for_data": t_collect / max(dt, 1e-9),
+            "frac_time_updating": t_update / max(dt, 1e-9),
         }
         if self.recent:
             row.update(aggregate_episodes(list(self.recent), self.num_stages))
@@ -645,6 +686,13 @@ def _in_main_thread() -> bool:
     import threading
 
     return threading.current_thread() is threading.main_thread()
+
+
+def _background_worker_env(make_env):
+    """Build the env in a background collector's worker process, which ignores SIGINT (see
+    :meth:`Trainer._collector_env`)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    return make_env()
 
 
 def train(cfg: DictConfig, phase: str, run_dir: str | Path, *, resume: bool = False) -> dict[str, Any]:
