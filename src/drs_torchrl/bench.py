@@ -95,6 +95,7 @@ def bench_components(algo: str, sizes: list[int], batch_reps: int = 50) -> dict:
     import tempfile
 
     from hydra import compose, initialize_config_dir
+    from tensordict import TensorDict
 
     from drs_torchrl.trainers.apps import conf_dir
     from drs_torchrl.trainers.loop import Trainer
@@ -124,17 +125,18 @@ def bench_components(algo: str, sizes: list[int], batch_reps: int = 50) -> dict:
         out["disc_update_ms"] = per_call_ms(tr._disc_step, n=200)
         states = torch.cat(tr.stage_buffers.snapshot_parts())
         episode = tr.stage_buffers.stage_data(0)[:50].clone()
+        ep = TensorDict({"next": episode}, batch_size=episode.shape)
         sweep = []
         for size in sorted(sizes):
             while len(tr.stage_buffers) < size:
                 tr.stage_buffers.extend(states[: size - len(tr.stage_buffers)])
             tr.stage_buffers.sample_discriminator_batch()  # sync the new slots' labels (once)
+            n = len(tr.stage_buffers)
             ms = per_call_ms(tr.stage_buffers.sample_discriminator_batch, n=200)
-            from tensordict import TensorDict
-
-            ep = TensorDict({"next": episode}, batch_size=episode.shape)
-            file_ms = per_call_ms(lambda: (tr.stage_buffers.add_trajectory(ep), tr.stage_buffers.sample_discriminator_batch()), n=50)
-            sweep.append({"transitions": len(tr.stage_buffers), "sample_ms": ms, "file_episode_and_sample_ms": file_ms})
+            # filing adds 50 transitions per call (12 calls: at most 600, small beside the sizes swept)
+            file_ms = per_call_ms(lambda: (tr.stage_buffers.add_trajectory(ep), tr.stage_buffers.sample_discriminator_batch()),
+                                  n=10, warm=2)
+            sweep.append({"transitions": n, "sample_ms": ms, "file_episode_and_sample_ms": file_ms})
         out["stage_sample"] = sweep
         tr.close()
     cfg.algo.compile = True

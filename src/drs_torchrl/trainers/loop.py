@@ -397,6 +397,18 @@ class Trainer:
                                  transforms=transforms, **self._env_kwargs)
         return functools.partial(_background_worker_env, make)
 
+    def make_collector(self, frames: int):
+        """The configured TorchRL collector for the next ``frames`` env steps, acting with
+        ``self.actor`` (random actions until ``algo.learning_starts``)."""
+        a = self.cfg.algo
+        return instantiate(a.collector)(
+            self._collector_env(),
+            self.actor,
+            total_frames=frames,
+            init_random_frames=max(0, int(a.learning_starts) - self.frames),
+            device=self.device,
+        )
+
     def run(self) -> dict[str, Any]:
         cfg, a = self.cfg, self.cfg.algo
         total = int(cfg.total_frames)
@@ -408,13 +420,7 @@ class Trainer:
         summary: dict[str, Any] = {"phase": self.phase, "run_dir": str(self.run_dir), "resumed_from": self.resumed_from}
         remaining = total - self.frames
         if remaining > 0:
-            self.collector = instantiate(a.collector)(
-                self._collector_env(),
-                self.actor,
-                total_frames=remaining,
-                init_random_frames=max(0, int(a.learning_starts) - self.frames),
-                device=self.device,
-            )
+            self.collector = self.make_collector(remaining)
         bar = tqdm(total=total, initial=self.frames, desc=f"drs-{self.phase}", unit="step",
                    disable=not cfg.logger.progress_bar, dynamic_ncols=True)
         t0, frames0 = time.perf_counter(), self.frames

@@ -1,0 +1,59 @@
+"""The background collector (a TorchRL AsyncCollector process beside the learner, issue 4):
+the worker acts with the learner's current actor, the UTD stays exact, and runs finish and save."""
+import json
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+
+from drs_torchrl.trainers.apps import conf_dir
+from drs_torchrl.trainers.loop import Trainer
+
+pytestmark = [pytest.mark.sim]
+
+BACKGROUND = "algo.collector._target_=torchrl.collectors.AsyncCollector"
+TINY = [
+    "algo.batch_size=64", "algo.hidden=[32,32]", "reward.disc.batch_size=32", "eval.episodes=0",
+    "logger.progress_bar=false", "logger.tensorboard=false", "checkpoint_interval=1000000",
+]
+
+
+def config(*overrides):
+    with initialize_config_dir(config_dir=conf_dir(), version_base=None):
+        return compose("learn", overrides=[BACKGROUND, *TINY, *overrides])
+
+
+def test_background_worker_acts_with_the_updated_actor(tmp_path):
+    tr = Trainer(config("total_frames=100000", "algo.learning_starts=0"), "learn", tmp_path)
+    assert tr.collects_in_background
+    collector = tr.make_collector(64 * 6)
+    try:
+        it = iter(collector)
+        first = next(it)
+        assert (first["action"] - 1).abs().max() > 0.5  # the fresh actor explores
+        # make the learner's actor output a saturated +1 action everywhere, then sync the worker
+        last = [m for m in tr.actor.modules() if isinstance(m, torch.nn.Linear)][-1]  # output layer: (loc, scale)
+        with torch.no_grad():
+            last.weight.zero_()
+            last.bias.zero_()
+            last.bias[: last.bias.numel() // 2] = 20.0  # loc: tanh(20) = 1
+            last.bias[last.bias.numel() // 2:] = -20.0  # scale: at its lower bound
+        collector.update_policy_weights_()
+        next(it)  # may have been collected before the sync (one batch of policy lag)
+        after = next(it)
+        assert torch.allclose(after["action"], torch.ones_like(after["action"]), atol=1e-3)
+    finally:
+        collector.shutdown()
+        tr.close()
+
+
+def test_background_run_keeps_utd_exact_and_saves(tmp_path):
+    tr = Trainer(config("total_frames=768", "algo.learning_starts=256", "algo.frames_per_batch=64", "logger.interval=256"),
+                 "learn", tmp_path)
+    summary = tr.run()
+    assert summary["frames"] == 768
+    # UTD 0.5 for every 64-step batch that ends at or after learning_starts (256, 320, ..., 768)
+    assert summary["updates"] == len(range(256, 769, 64)) * 32
+    assert (tmp_path / "checkpoints" / "reward.pt").is_file()
+    assert (tmp_path / "checkpoints" / "state" / "COMPLETE").is_file()
+    assert sum(json.loads((tmp_path / "summary.json").read_text())["stage_buffer_episodes"]) >= 10
