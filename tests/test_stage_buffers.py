@@ -139,6 +139,27 @@ def test_assembler_joins_episodes_across_batches_per_env():
     assert [e.shape[0] for e in eps] == [2, 1, 3]
 
 
+def test_assembler_keeps_interleaved_workers_apart_by_trajectory_id():
+    """Batches of a two-worker collector arrive interleaved; episodes are joined by trajectory id."""
+    asm = TrajectoryAssembler()
+
+    def batch(worker, ids, done, t0):
+        n = len(ids)
+        return TensorDict({
+            "worker": torch.full((n, 1), worker), "t": torch.arange(t0, t0 + n)[:, None],
+            "collector": {"traj_ids": torch.tensor(ids)}, "next": {"done": torch.tensor(done, dtype=torch.bool)[:, None]},
+        }, batch_size=[n])
+
+    assert asm.add(batch(0, [0, 0, 0], [0, 0, 0], 0)) == []
+    assert asm.add(batch(1, [1, 1, 1], [0, 0, 0], 0)) == []
+    (a,) = asm.add(batch(0, [0, 2, 2], [1, 0, 0], 3))  # worker 0's episode 0 ends
+    assert a["worker"].unique().tolist() == [0] and a["t"].reshape(-1).tolist() == [0, 1, 2, 3]
+    (b,) = asm.add(batch(1, [1, 1, 3], [0, 1, 0], 3))
+    assert b["worker"].unique().tolist() == [1] and b["t"].reshape(-1).tolist() == [0, 1, 2, 3, 4]
+    (c,) = asm.add(batch(0, [2], [1], 6))
+    assert c["t"].reshape(-1).tolist() == [4, 5, 6] and c["worker"].unique().tolist() == [0]
+
+
 def test_mixed_stages_in_one_extend_and_placeholders_point_at_filed_data():
     sb = StageBuffers(N, ["observation"], capacity=10, batch_size=4)
     data = TensorDict({"observation": torch.arange(6.0)[:, None].expand(6, OBS), "stage": torch.zeros(6, 1, dtype=torch.long),

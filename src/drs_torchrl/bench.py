@@ -47,13 +47,14 @@ def bench_raw_sim(env_id: str, steps: int, env_kwargs: dict, control_mode: str) 
     return steps / dt
 
 
-def bench_collect(family, steps: int, background: bool = False) -> float:
+def bench_collect(family, steps: int, collector: str = "inproc") -> float:
     """Collection without learning: Collector + env + StageIndicator, random policy, transitions
     into the replay buffer, episodes assembled and filed into the stage buffers. ``background``:
-    the env steps in a TorchRL ``AsyncCollector`` worker while this process files the data."""
+    the env steps in a TorchRL ``AsyncCollector`` worker while this process files the data;
+    ``background2``: two such workers (``MultiAsyncCollector``), each with its own simulator."""
     import functools
 
-    from torchrl.collectors import AsyncCollector, Collector
+    from torchrl.collectors import AsyncCollector, Collector, MultiAsyncCollector
     from torchrl.data import LazyTensorStorage, ReplayBuffer
 
     from drs_torchrl.data import StageBuffers, TrajectoryAssembler
@@ -64,8 +65,11 @@ def bench_collect(family, steps: int, background: bool = False) -> float:
     sb = StageBuffers(family.num_stages, list(family.reward_in_keys), capacity=steps + 64)
     asm = TrajectoryAssembler()
     warmup = 128  # the worker's start (imports, simulator build) is not part of the rate
-    if background:
+    if collector == "background":
         collector = AsyncCollector(make, None, frames_per_batch=64, total_frames=steps + warmup)
+    elif collector == "background2":
+        makers = [functools.partial(make_family_env, family, "train", seed=s) for s in (0, 1)]
+        collector = MultiAsyncCollector(makers, None, frames_per_batch=64, total_frames=steps + warmup)
     else:
         collector = Collector(make(), None, frames_per_batch=64, total_frames=steps + warmup,
                               auto_register_policy_transforms=False)
@@ -155,7 +159,8 @@ def bench_components(algo: str, sizes: list[int], batch_reps: int = 50) -> dict:
     return out
 
 
-COLLECTORS = {"inproc": "torchrl.collectors.Collector", "background": "torchrl.collectors.AsyncCollector"}
+COLLECTORS = {"inproc": "torchrl.collectors.Collector", "background": "torchrl.collectors.AsyncCollector",
+              "background2": "torchrl.collectors.MultiAsyncCollector"}
 
 
 def bench_learn(algo: str, frames: int, overrides: list[str], collector: str = "inproc") -> dict:
@@ -169,7 +174,8 @@ def bench_learn(algo: str, frames: int, overrides: list[str], collector: str = "
     from drs_torchrl.trainers.loop import Trainer
 
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
-        cfg = compose("learn", overrides=[f"algo={algo}", f"algo.collector._target_={COLLECTORS[collector]}", *overrides])
+        workers = ["+algo.collector.num_workers=2"] if collector == "background2" else []
+        cfg = compose("learn", overrides=[f"algo={algo}", f"algo.collector._target_={COLLECTORS[collector]}", *workers, *overrides])
     start = int(cfg.algo.learning_starts)
     cfg.total_frames = start + frames
     cfg.eval.interval = 10**9
@@ -254,7 +260,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--collect-steps", type=int, default=3008)
     p.add_argument("--learn-frames", type=int, default=2048)
     p.add_argument("--algos", nargs="*", default=["sac_cpu", "sac_paper"])
-    p.add_argument("--collectors", nargs="*", default=["inproc", "background"], choices=sorted(COLLECTORS))
+    p.add_argument("--collect-collectors", nargs="*", default=["inproc", "background", "background2"], choices=sorted(COLLECTORS),
+                   help="collectors for the collection-only measurement")
+    p.add_argument("--collectors", nargs="*", default=["inproc", "background"], choices=sorted(COLLECTORS),
+                   help="collectors for the phase-1 measurements")
     p.add_argument("--stage-sizes", nargs="*", type=int, default=[1_000, 10_000, 100_000, 1_000_000],
                    help="stage-buffer sizes for the sampling-time sweep (empty: skip the component timings)")
     p.add_argument("--out", default="results/bench")
@@ -277,9 +286,9 @@ def main(argv: list[str] | None = None) -> int:
     res["raw_sim_steps_per_s"] = bench_raw_sim(fam.env_id, a.raw_steps, kw, fam.control_mode)
     print(f"  {res['raw_sim_steps_per_s']:.0f} steps/s", flush=True)
     res["collect"] = {}
-    for c in a.collectors:
+    for c in a.collect_collectors:
         print(f"collection only, {c} collector ...", flush=True)
-        res["collect"][c] = bench_collect(fam, a.collect_steps, background=(c == "background"))
+        res["collect"][c] = bench_collect(fam, a.collect_steps, collector=c)
         torch.set_num_threads(threads)  # a background collector lowers this process's threads while it runs
         print(f"  {res['collect'][c]:.0f} steps/s ({res['collect'][c] / res['raw_sim_steps_per_s']:.2f}x raw)", flush=True)
     res["learn"] = []

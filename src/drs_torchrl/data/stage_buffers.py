@@ -390,15 +390,19 @@ class StageBuffers(ReplayBuffer):
 
 
 class TrajectoryAssembler:
-    """Assemble finished episodes from consecutive collector batches, per env index.
+    """Assemble finished episodes from collector batches, which may each hold part of an episode.
 
     Collector batches have shape ``(*env_batch, T)``; an episode may span several batches. ``add``
     returns the episodes that ended in this batch, each a ``(T_ep,)`` TensorDict, in order of ending.
+    Unfinished parts are kept by the collector's trajectory id (``("collector", "traj_ids")``, unique
+    across the workers of a multi-process collector, whose batches arrive interleaved), or by env
+    index in the batch when the batch carries no trajectory ids.
     """
 
-    def __init__(self, done_key=("next", "done")):
+    def __init__(self, done_key=("next", "done"), traj_key=("collector", "traj_ids")):
         self.done_key = done_key
-        self._partial: dict[int, list[TensorDictBase]] = {}
+        self.traj_key = traj_key
+        self._partial: dict[tuple, list[TensorDictBase]] = {}
 
     def add(self, batch: TensorDictBase) -> list[TensorDictBase]:
         if batch.batch_dims == 1:
@@ -408,14 +412,18 @@ class TrajectoryAssembler:
         finished = []
         for i, td in enumerate(per_env):
             done = td.get(self.done_key).reshape(-1)
+            ids = td.get(self.traj_key, None)
+            ids = ids.reshape(-1) if ids is not None else None
             ends = done.nonzero().reshape(-1).tolist()
             start = 0
             for end in ends:
-                parts = self._partial.pop(i, []) + [td[start : end + 1]]
+                key = ("traj", int(ids[start])) if ids is not None else ("env", i)
+                parts = self._partial.pop(key, []) + [td[start : end + 1]]
                 finished.append(torch.cat(parts, 0) if len(parts) > 1 else parts[0].clone())
                 start = end + 1
             if start < td.shape[0]:
-                self._partial.setdefault(i, []).append(td[start:].clone())
+                key = ("traj", int(ids[start])) if ids is not None else ("env", i)
+                self._partial.setdefault(key, []).append(td[start:].clone())
         return finished
 
     def reset(self):

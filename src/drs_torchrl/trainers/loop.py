@@ -25,7 +25,7 @@ import torch
 from hydra.utils import get_class, instantiate
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDict
-from torchrl.collectors import MultiCollector
+from torchrl.collectors import AsyncCollector, MultiCollector
 from torchrl.envs.transforms import DeviceCastTransform
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm.auto import tqdm
@@ -116,6 +116,8 @@ class Trainer:
         if resume:
             find_training_state(self.run_dir)  # fail before building anything
         seed_everything(int(cfg.seed))
+        if cfg.get("torch_threads"):
+            torch.set_num_threads(int(cfg.torch_threads))
         self.device = torch.device("cuda" if cfg.device == "auto" and torch.cuda.is_available() else ("cpu" if cfg.device == "auto" else cfg.device))
         self.family = family = get_family(cfg.env.family)
         self.num_stages = family.num_stages
@@ -393,9 +395,16 @@ class Trainer:
             )
         seed = int(self.cfg.seed) + (1 + self.frames if self.resumed_from is not None else 0)
         transforms = (self.reward.frozen.clone(),) if self.reward.frozen is not None else ()
-        make = functools.partial(make_family_env, self.family, self.cfg.env.split, seed=seed,
-                                 transforms=transforms, **self._env_kwargs)
-        return functools.partial(_background_worker_env, make)
+
+        def factory(worker: int):
+            make = functools.partial(make_family_env, self.family, self.cfg.env.split, seed=seed + 7919 * worker,
+                                     transforms=transforms, **self._env_kwargs)
+            return functools.partial(_background_worker_env, make)
+
+        if issubclass(get_class(self.cfg.algo.collector._target_), AsyncCollector):
+            return factory(0)
+        # MultiAsyncCollector / MultiSyncCollector: one differently seeded env per worker process
+        return [factory(w) for w in range(int(self.cfg.algo.collector.get("num_workers") or 1))]
 
     def make_collector(self, frames: int):
         """The configured TorchRL collector for the next ``frames`` env steps, acting with
