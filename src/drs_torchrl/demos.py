@@ -60,12 +60,13 @@ def record_demos(family: TaskFamily, variant: str, num: int, *, seed: int = 0, v
     import drs_torchrl.envs.variants  # noqa: F401
     from drs_torchrl.envs.doctor import ensure_env_ready
 
-    kwargs = family.variant_kwargs(variant, variant_overrides)
-    ensure_env_ready(family.env_id, kwargs)
+    args = family.env_args(variant, variant_overrides)  # train/test: the split's variants, drawn per episode
+    env_id, kwargs = args["env_id"], args["env_kwargs"]
+    ensure_env_ready(env_id, kwargs)
     ref, solve = _solver(family)
-    env = gym.make(family.env_id, obs_mode="state", control_mode="pd_joint_pos", num_envs=1, sim_backend="physx_cpu",
+    env = gym.make(env_id, obs_mode="state", control_mode="pd_joint_pos", num_envs=1, sim_backend="physx_cpu",
                    render_mode=None, max_episode_steps=10 * family.max_episode_steps, **kwargs)
-    recorder = _Recorder(env, family.all_info_keys)
+    recorder = _Recorder(env, family.all_info_keys, family.task_observation_key)
     labeller = StageIndicator(family.stage_keys)
     episodes, lengths, seeds = [], [], []
     tries, s = 0, seed
@@ -102,9 +103,9 @@ def record_demos(family: TaskFamily, variant: str, num: int, *, seed: int = 0, v
     env.close()
     data = torch.cat(episodes, 0)
     meta = {
-        "format": DEMO_FORMAT, "version": DEMO_VERSION, "family": family.name, "env_id": family.env_id,
+        "format": DEMO_FORMAT, "version": DEMO_VERSION, "family": family.name, "env_id": env_id,
         "variant": variant, "variant_kwargs": kwargs, "stage_keys": list(family.stage_keys),
-        "shapes": {k: int(data[k].shape[-1]) for k in ("observation", "stage_indicators")},
+        "shapes": {k: int(data[k].shape[-1]) for k in ("observation", "stage_indicators", family.task_observation_key) if k},
         "episodes": len(episodes), "lengths": lengths, "seeds": seeds, "solver": ref,
     }
     return data, meta
@@ -113,8 +114,8 @@ def record_demos(family: TaskFamily, variant: str, num: int, *, seed: int = 0, v
 class _Recorder:
     """Wraps the gymnasium env the solver drives and records every state it reaches."""
 
-    def __init__(self, env, info_keys):
-        self.env, self.info_keys = env, tuple(info_keys)
+    def __init__(self, env, info_keys, task_observation_key=None):
+        self.env, self.info_keys, self.task_key = env, tuple(info_keys), task_observation_key
         self._rows: list[dict] = []
 
     def __getattr__(self, name):
@@ -133,6 +134,8 @@ class _Recorder:
         row = {"observation": torch.as_tensor(obs).reshape(-1).float()}
         for k in self.info_keys:
             row[k] = torch.as_tensor(info[k]).reshape(1).bool()
+        if self.task_key:  # the robot-agnostic reward input of families such as cross_robot
+            row[self.task_key] = self.env.unwrapped.task_observation().reshape(-1).float()
         self._rows.append(row)
         return obs, reward, terminated, truncated, info
 
