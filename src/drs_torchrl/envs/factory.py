@@ -50,7 +50,12 @@ def make_family_env(
     if family.task_observation_key:
         kwargs["task_observation_key"] = family.task_observation_key
     gpu = sim_backend in ("physx_cuda", "cuda", "gpu") or (sim_backend == "auto" and num_envs > 1 and torch.cuda.is_available())
-    if num_envs > 1 and not gpu:
+    if family.backend == "gymnasium":  # e.g. MuJoCo HalfCheetah (Appendix G): TorchRL's GymWrapper
+        from drs_torchrl.envs.gym_family import make_gym_family_base
+
+        base = make_gym_family_base(family, kwargs.pop("env_kwargs"), num_envs=num_envs, cpu_batching=cpu_batching,
+                                    sim_backend=sim_backend, **kwargs)
+    elif num_envs > 1 and not gpu:
         # several CPU simulators: one ManiSkill env per TorchRL sub-env
         if cpu_batching == "parallel":
             make_one = functools.partial(_worker_env, env_id, family.all_info_keys, sim_backend="physx_cpu", **kwargs)

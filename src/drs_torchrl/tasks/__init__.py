@@ -28,6 +28,9 @@ class TaskFamily:
             entry overrides the family's for that variant).
         train_variants / test_variants: disjoint variant names for reward learning / reuse.
         control_mode, max_episode_steps: as in the paper's setup (EE delta position control).
+        backend: simulator that builds ``env_id``: ``"maniskill"`` (ManiSkill3/SAPIEN) or
+            ``"gymnasium"`` (a Gymnasium env through TorchRL's ``GymWrapper``, e.g. the MuJoCo
+            locomotion family of Appendix G; see ``drs_torchrl.envs.gym_family``).
         pooled: the env takes all variants of a split (``variants=[...]``, ``variant_names=[...]``)
             and draws one per episode (``drs_torchrl.envs.variants.pool``). Otherwise
             ``env.split=train|test`` means the split's first variant.
@@ -47,10 +50,13 @@ class TaskFamily:
     max_episode_steps: int = 50
     description: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
+    backend: str = "maniskill"
     pooled: bool = False
     task_observation_key: str | None = None
 
     def __post_init__(self):
+        if self.backend not in ("maniskill", "gymnasium"):
+            raise ValueError(f"family {self.name!r}: backend must be 'maniskill' or 'gymnasium', got {self.backend!r}")
         if not self.stage_keys:
             raise ValueError(f"family {self.name!r}: stage_keys must name at least the success indicator")
         overlap = set(self.train_variants) & set(self.test_variants)
@@ -143,3 +149,4 @@ from drs_torchrl.tasks import cross_robot  # noqa: E402,F401
 from drs_torchrl.tasks import pick_ycb  # noqa: E402,F401
 from drs_torchrl.tasks import turn_faucet  # noqa: E402,F401
 from drs_torchrl.tasks import open_cabinet_door  # noqa: E402,F401
+from drs_torchrl.tasks import half_cheetah  # noqa: E402,F401
