@@ -131,7 +131,27 @@ def main(argv: list[str] | None = None) -> int:
     except (VulkanUnavailableError, MissingAssetError) as exc:
         print(exc, file=sys.stderr)
         return 1
+    print(family_asset_report())
     return 0
+
+
+def family_asset_report() -> str:
+    """One line per ManiSkill task family: ready, or the assets it lacks and the command that fetches them."""
+    from drs_torchrl.tasks import get_family, list_families
+
+    lines = ["task families:"]
+    for name in list_families():
+        fam = get_family(name)
+        if getattr(fam, "backend", "maniskill") != "maniskill":
+            continue
+        needs = []
+        for split in ("train", "test"):
+            args = fam.env_args(split)
+            if missing_assets(args["env_id"], args["env_kwargs"]):
+                needs.append(asset_download_command(args["env_id"], args["env_kwargs"]))
+        status = "ready" if not needs else "needs assets: " + " ; ".join(dict.fromkeys(needs))
+        lines.append(f"  {name:<18} {status}")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -40,6 +40,6 @@ register_family(
         test_variants=("fetch_cube_2cm", "fetch_cube_1_75cm"),
         pooled=True,
         # ManiSkill's motion planner drives the Panda: demonstrations for the training split
-        extra={"demo_solver": "mani_skill.examples.motionplanning.panda.solutions.pick_cube:solve"},
+        extra={"demo_solver": "mani_skill.examples.motionplanning.panda.solutions.pick_cube:solve", "demo_settle_steps": 20},
     )
 )

@@ -46,6 +46,6 @@ register_family(
         train_variants=tuple(TRAIN_OBJECTS),
         test_variants=tuple(TEST_OBJECTS),
         pooled=True,
-        extra={"demo_solver": "mani_skill.examples.motionplanning.panda.solutions.pick_cube:solve"},
+        extra={"demo_solver": "mani_skill.examples.motionplanning.panda.solutions.pick_cube:solve", "demo_settle_steps": 20},
     )
 )

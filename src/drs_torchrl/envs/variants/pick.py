@@ -5,6 +5,8 @@ with the object, the "placed" threshold and the robot as parameters.
   Stage indicators: ``is_grasped`` (both fingers touch the object with non-zero force),
   ``is_obj_placed`` (object within ``goal_thresh`` of the goal, 2.5 cm by default) and ``success``
   = placed, robot static (joint speeds < 0.2 rad/s) and object static (< 3 cm/s), as Appendix A.
+  The object's speed is its displacement over the last control step: PhysX reports a few cm/s
+  (and rad/s) of velocity for an object squeezed between the fingers even when it does not move.
   Works with the robots ManiSkill's PickCube supports without downloads (``panda``, ``fetch``,
   ``so100``); each robot keeps ManiSkill's PickCube workspace (spawn region, goal heights).
   :meth:`PickObjectEnv.task_observation` is a robot-agnostic view of the task for rewards that
@@ -105,6 +107,17 @@ class PickObjectEnv(VariantPoolMixin, PickCubeEnv):
             goal[:, 2] = torch.rand(b) * self.max_goal_height + rest
             self.goal_site.set_pose(Pose.create_from_pq(goal))
             self._sync_attributes()
+            if getattr(self, "_obj_prev_p", None) is None or len(self._obj_prev_p) != self.num_envs:
+                self._obj_prev_p = torch.zeros((self.num_envs, 3))
+            self._obj_prev_p[env_idx] = xyz
+
+    def _before_control_step(self):
+        super()._before_control_step()
+        self._obj_prev_p = self.obj.pose.p.clone()
+
+    def object_speed(self) -> torch.Tensor:
+        """Object speed over the last control step (m/s), ``(num_envs,)``; 0 right after a reset."""
+        return torch.linalg.norm(self.obj.pose.p - self._obj_prev_p, axis=1) * self.control_freq
 
     def _sync_attributes(self):
         """Scalar views of the current variant on the CPU backend (what PickCube's users read)."""
@@ -124,7 +137,7 @@ class PickObjectEnv(VariantPoolMixin, PickCubeEnv):
         success = is_obj_placed & is_robot_static
         if "object_static_thresh" in self.VARIANT_DEFAULTS:
             thresh = self._param("object_static_thresh")
-            info["is_obj_static"] = (torch.linalg.norm(obj.linear_velocity, axis=1) <= thresh) | (thresh <= 0)
+            info["is_obj_static"] = (self.object_speed() <= thresh) | (thresh <= 0)
             success = success & info["is_obj_static"]
         return {"success": success, **info}
 
