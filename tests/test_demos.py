@@ -59,3 +59,112 @@ def test_bad_demo_directories(tmp_path):
     (tmp_path / "other" / "meta.json").write_text(json.dumps({"format": "something-else"}))
     with pytest.raises(DemoError, match="unknown format"):
         load_demos(tmp_path / "other")
+
+
+# ------------------------------------------------ ManiSkill trajectory files (.h5 + .json) -> demos
+H5_EPISODES = 2  # solved by the motion planner; one more random-action episode that does not succeed
+
+
+@pytest.fixture(scope="module")
+def maniskill_h5(tmp_path_factory):
+    """A real ManiSkill trajectory file: ManiSkill's RecordEpisode around PickCubeSized-v1 (2 cm cube),
+    driven by ManiSkill's motion-planning solver (2 episodes) and by random actions (1 episode)."""
+    import gymnasium as gym
+    import mani_skill.envs  # noqa: F401
+    from mani_skill.examples.motionplanning.panda.solutions.pick_cube import solve
+    from mani_skill.utils.wrappers.record import RecordEpisode
+
+    import drs_torchrl.envs.variants  # noqa: F401
+
+    torch.set_num_threads(1)
+    out = tmp_path_factory.mktemp("h5")
+    env = gym.make("PickCubeSized-v1", obs_mode="state", control_mode="pd_joint_pos", num_envs=1,
+                   sim_backend="physx_cpu", render_mode=None, max_episode_steps=300, cube_half_size=0.02)
+    env = RecordEpisode(env, str(out), trajectory_name="pick", save_trajectory=True, save_video=False,
+                        save_on_reset=False, source_type="motionplanning")
+    for seed in range(H5_EPISODES):
+        solve(env, seed=seed)
+        env.flush_trajectory()
+    env.reset(seed=7)
+    gen = torch.Generator().manual_seed(0)
+    for _ in range(15):
+        env.step(torch.rand(1, 8, generator=gen) * 2 - 1)
+    env.flush_trajectory()
+    env.close()
+    return out / "pick.h5"
+
+
+@pytest.mark.sim
+def test_maniskill_h5_converts_to_demos_matching_the_recording(maniskill_h5, pick_cube, tmp_path):
+    import h5py
+
+    from drs_torchrl.demos import load_maniskill_h5, main
+
+    states, meta = load_maniskill_h5(maniskill_h5, pick_cube, "cube_2cm", progress=False)
+    r = meta["replay"]
+    assert meta["episodes"] == H5_EPISODES and r["skipped_unsuccessful"] == 1 and r["episode_ids"] == [0, 1]
+    # a CPU recording replays exactly: no state had to be corrected, observations and success labels agree
+    assert r["state_corrections"] == 0 and r["max_state_error"] < 1e-5
+    assert r["max_recorded_obs_error"] < 1e-5 and r["success_label_mismatches"] == 0
+    assert meta["shapes"] == {"observation": 42, "stage_indicators": 3}
+    with h5py.File(maniskill_h5) as f:
+        for i, n in enumerate(meta["lengths"]):
+            ep = states[states["episode"] == i]
+            assert ep.shape[0] == n
+            recorded = torch.as_tensor(f[f"traj_{i}/obs"][()])[1 : n + 1]
+            assert torch.allclose(ep["observation"], recorded, atol=1e-5)
+            success = torch.as_tensor(f[f"traj_{i}/success"][()])[:n]
+            assert torch.equal(ep["success"].reshape(-1), success)
+            assert bool(success[-1]) and not bool(success[:-1].any())  # cut at the first success
+            assert int(ep["stage"][-1]) == 3 and bool(ep["is_grasped"].any())
+    check_demos(meta, pick_cube, {"observation": 42, "stage_indicators": 3})
+
+    out = tmp_path / "from_h5.demos"
+    assert main(["--from-h5", str(maniskill_h5), "--family", "pick_cube", "--variant", "cube_2cm", "--out", str(out)]) == 0
+    episodes, saved = load_demos(out)
+    assert len(episodes) == H5_EPISODES and saved["lengths"] == meta["lengths"]
+    assert torch.equal(torch.cat([e["observation"] for e in episodes]), states["observation"])
+
+
+@pytest.mark.sim
+def test_maniskill_h5_errors_name_the_problem(maniskill_h5, pick_cube, tmp_path, capsys):
+    import shutil
+
+    from drs_torchrl.demos import load_maniskill_h5, main
+    from drs_torchrl.tasks import get_family
+
+    with pytest.raises(DemoError, match="no such trajectory file"):
+        load_maniskill_h5(tmp_path / "missing.h5", pick_cube)
+    assert main(["--from-h5", str(tmp_path / "missing.h5"), "--family", "pick_cube"]) == 2
+    assert "no such trajectory file" in capsys.readouterr().err
+
+    def copy(name, edit=None):
+        h5 = tmp_path / f"{name}.h5"
+        shutil.copy(maniskill_h5, h5)
+        meta = json.loads(maniskill_h5.with_suffix(".json").read_text())
+        if edit:
+            edit(meta)
+        h5.with_suffix(".json").write_text(json.dumps(meta))
+        return h5
+
+    lonely = tmp_path / "lonely.h5"
+    shutil.copy(maniskill_h5, lonely)
+    with pytest.raises(DemoError, match=r"lonely\.json is missing"):
+        load_maniskill_h5(lonely, pick_cube)
+
+    other = copy("other", lambda m: m["env_info"].update(env_id="PushCube-v1"))
+    with pytest.raises(DemoError, match="recorded in 'PushCube-v1'.*runs 'PickCubeSized-v1'"):
+        load_maniskill_h5(other, pick_cube)
+
+    with pytest.raises(DemoError, match=r"cube_half_size=0\.02 \(the variant has cube_half_size=0\.015\)"):
+        load_maniskill_h5(maniskill_h5, pick_cube, "cube_1_5cm")
+
+    def bad_mode(m):
+        for ep in m["episodes"]:
+            ep["control_mode"] = "pd_teleport"
+
+    with pytest.raises(DemoError, match="control mode 'pd_teleport'"):
+        load_maniskill_h5(copy("mode", bad_mode), pick_cube, "cube_2cm", progress=False)
+
+    with pytest.raises(DemoError, match="not a ManiSkill family"):
+        load_maniskill_h5(maniskill_h5, get_family("half_cheetah"))

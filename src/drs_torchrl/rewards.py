@@ -6,7 +6,8 @@ per step) and/or (d) a transform on replay-buffer samples (rewards that change w
 they are recomputed from the current modules when SAC samples; Sec. 4, Algorithm 1 line 18).
 
 Baselines of Sec. 5.2: ``sparse`` (success), ``semi_sparse`` (Eq. 2), ``dense`` (ManiSkill's
-human-engineered normalized dense reward).
+human-engineered normalized dense reward; for a Gymnasium family such as HalfCheetah, Appendix G,
+the env's own reward).
 """
 from __future__ import annotations
 

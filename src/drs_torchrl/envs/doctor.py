@@ -26,6 +26,15 @@ _EXTRA_ASSETS = {
     "OpenCabinetDrawer-v1": "partnet_mobility_cabinet",
 }
 
+# drs-torchrl's asset-backed family envs (envs/variants/assets.py): env id -> (ManiSkill download id,
+# data-source id of one model, or None when one download holds every model). Only the models of the
+# variants an env is given must be on disk.
+_SPLIT_ASSETS = {
+    "PickSingleYCBSplit-v1": ("ycb", None),
+    "TurnFaucetSplit-v1": ("partnet_mobility_faucet", "partnet_mobility/{}"),
+    "OpenCabinetDoorSplit-v1": ("partnet_mobility_cabinet", "partnet_mobility/{}"),
+}
+
 
 class MissingAssetError(RuntimeError):
     """A ManiSkill asset the environment needs is not downloaded."""
@@ -52,31 +61,46 @@ def check_vulkan() -> str:
     return summary
 
 
+def _asset_groups(env_id: str, env_kwargs: dict | None) -> list[str]:
+    """ManiSkill download ids (data groups or sources) that ``env_id`` and its robot use."""
+    kwargs = env_kwargs or {}
+    if env_id in _SPLIT_ASSETS:
+        groups = [_SPLIT_ASSETS[env_id][0]]
+    else:
+        groups = [env_id] + ([_EXTRA_ASSETS[env_id]] if env_id in _EXTRA_ASSETS else [])
+    robots = {kwargs.get("robot_uids")} | {v.get("robot_uids") for v in kwargs.get("variants") or []}
+    groups += sorted(r for r in robots if isinstance(r, str))
+    return groups
+
+
 def missing_assets(env_id: str, env_kwargs: dict | None = None) -> list[str]:
-    """ManiSkill data-source ids that ``env_id`` (and its robot) need and that are not on disk."""
+    """ManiSkill data-source ids that ``env_id`` (and its robot) need and that are not on disk.
+
+    For drs-torchrl's split envs only the models named by the variants in ``env_kwargs`` count.
+    """
     from mani_skill.utils.assets import data
 
-    groups = [env_id]
-    if env_id in _EXTRA_ASSETS:
-        groups.append(_EXTRA_ASSETS[env_id])
-    robot = (env_kwargs or {}).get("robot_uids")
-    if isinstance(robot, str):
-        groups.append(robot)
-    missing = []
-    for group in groups:
+    def expand(group):
         try:
-            ids = data.expand_data_group_into_individual_data_source_ids(group)
+            return list(data.expand_data_group_into_individual_data_source_ids(group))
         except Exception:
-            ids = [group] if group in data.DATA_SOURCES else []
-        missing += [i for i in ids if not data.is_data_source_downloaded(i)]
-    return sorted(set(missing))
+            return [group] if group in data.DATA_SOURCES else []
+
+    needed: list[str] = []
+    for group in _asset_groups(env_id, env_kwargs):
+        if env_id in _SPLIT_ASSETS and group == _SPLIT_ASSETS[env_id][0] and _SPLIT_ASSETS[env_id][1]:
+            models = [m for v in (env_kwargs or {}).get("variants") or [env_kwargs or {}] for m in v.get("model_ids") or []]
+            if models:
+                needed += [_SPLIT_ASSETS[env_id][1].format(m) for m in models]
+                continue
+        needed += expand(group)
+    return sorted({i for i in needed if i not in data.DATA_SOURCES or not data.is_data_source_downloaded(i)})
 
 
 def asset_download_command(env_id: str, env_kwargs: dict | None = None) -> str:
     from mani_skill.utils.assets import data
 
-    groups = [g for g in (env_id, _EXTRA_ASSETS.get(env_id), (env_kwargs or {}).get("robot_uids")) if g]
-    ids = [g for g in groups if isinstance(g, str) and (g in data.DATA_GROUPS or g in data.DATA_SOURCES)]
+    ids = [g for g in _asset_groups(env_id, env_kwargs) if g in data.DATA_GROUPS or g in data.DATA_SOURCES]
     return " && ".join(f"python -m mani_skill.utils.download_asset {i} -y" for i in ids)
 
 
@@ -107,7 +131,27 @@ def main(argv: list[str] | None = None) -> int:
     except (VulkanUnavailableError, MissingAssetError) as exc:
         print(exc, file=sys.stderr)
         return 1
+    print(family_asset_report())
     return 0
+
+
+def family_asset_report() -> str:
+    """One line per ManiSkill task family: ready, or the assets it lacks and the command that fetches them."""
+    from drs_torchrl.tasks import get_family, list_families
+
+    lines = ["task families:"]
+    for name in list_families():
+        fam = get_family(name)
+        if getattr(fam, "backend", "maniskill") != "maniskill":
+            continue
+        needs = []
+        for split in ("train", "test"):
+            args = fam.env_args(split)
+            if missing_assets(args["env_id"], args["env_kwargs"]):
+                needs.append(asset_download_command(args["env_id"], args["env_kwargs"]))
+        status = "ready" if not needs else "needs assets: " + " ; ".join(dict.fromkeys(needs))
+        lines.append(f"  {name:<18} {status}")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

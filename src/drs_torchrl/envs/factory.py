@@ -38,23 +38,33 @@ def make_family_env(
     :class:`~torchrl.envs.ParallelEnv` (``"parallel"``, one process each); on the GPU backend
     ManiSkill simulates them all in one process.
     """
+    # a pooled family's env gets every variant of the split and draws one per episode (tasks/__init__.py)
+    args = family.env_args(variant, variant_overrides)
+    env_id = args["env_id"]
     kwargs = dict(
-        control_mode=control_mode or family.control_mode,
+        control_mode=control_mode or args["control_mode"] or family.control_mode,
         reward_mode=reward_mode,
         max_episode_steps=max_episode_steps or family.max_episode_steps,
-        env_kwargs=family.variant_kwargs(variant, variant_overrides),
+        env_kwargs=args["env_kwargs"],
     )
+    if family.task_observation_key:
+        kwargs["task_observation_key"] = family.task_observation_key
     gpu = sim_backend in ("physx_cuda", "cuda", "gpu") or (sim_backend == "auto" and num_envs > 1 and torch.cuda.is_available())
-    if num_envs > 1 and not gpu:
+    if family.backend == "gymnasium":  # e.g. MuJoCo HalfCheetah (Appendix G): TorchRL's GymWrapper
+        from drs_torchrl.envs.gym_family import make_gym_family_base
+
+        base = make_gym_family_base(family, kwargs.pop("env_kwargs"), num_envs=num_envs, cpu_batching=cpu_batching,
+                                    sim_backend=sim_backend, **kwargs)
+    elif num_envs > 1 and not gpu:
         # several CPU simulators: one ManiSkill env per TorchRL sub-env
         if cpu_batching == "parallel":
-            make_one = functools.partial(_worker_env, family.env_id, family.all_info_keys, sim_backend="physx_cpu", **kwargs)
+            make_one = functools.partial(_worker_env, env_id, family.all_info_keys, sim_backend="physx_cpu", **kwargs)
             base = ParallelEnv(num_envs, make_one)
         else:
-            make_one = functools.partial(ManiSkillEnv, family.env_id, family.all_info_keys, sim_backend="physx_cpu", **kwargs)
+            make_one = functools.partial(ManiSkillEnv, env_id, family.all_info_keys, sim_backend="physx_cpu", **kwargs)
             base = SerialEnv(num_envs, make_one)
     else:
-        base = ManiSkillEnv(family.env_id, family.all_info_keys, num_envs=num_envs, sim_backend=sim_backend, **kwargs)
+        base = ManiSkillEnv(env_id, family.all_info_keys, num_envs=num_envs, sim_backend=sim_backend, **kwargs)
     env = TransformedEnv(base, StageIndicator(
             family.stage_keys,
             semi_sparse_reward=semi_sparse_reward,

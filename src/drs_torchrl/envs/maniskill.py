@@ -12,6 +12,12 @@ explicit instead:
 
 The info entries that stage indicators need (``is_grasped``, ``is_obj_placed``, ``success``...) are
 written into the TensorDict as boolean entries of shape ``(*batch, 1)``.
+
+Task families (DrS Sec. 3) hand the env the variants of a split; the drs-torchrl task envs
+(``drs_torchrl.envs.variants``) draw one per episode, and this wrapper writes the index of the
+episode's variant as ``"variant_index"`` (``int64``, ``(*batch, 1)``; names in ``variant_names``).
+A family whose reward must not depend on the robot (``cross_robot``) also gets the task env's
+robot-agnostic ``task_observation()`` under ``task_observation_key``.
 """
 from __future__ import annotations
 
@@ -41,6 +47,8 @@ class ManiSkillEnv(EnvBase):
         max_episode_steps: episode length (time-limit truncation); ``None`` keeps ManiSkill's.
         env_kwargs: extra keyword arguments for ``gym.make`` (task variant parameters).
         observation_key: where the flat state observation goes.
+        task_observation_key: if set, also write the task env's ``task_observation()`` (a flat
+            robot-agnostic task state, see ``envs/variants/pick.py``) under this key.
     """
 
     def __init__(
@@ -55,6 +63,7 @@ class ManiSkillEnv(EnvBase):
         max_episode_steps: int | None = None,
         env_kwargs: dict | None = None,
         observation_key: str = "observation",
+        task_observation_key: str | None = None,
         device: str | torch.device | None = None,
     ):
         import gymnasium as gym
@@ -75,9 +84,9 @@ class ManiSkillEnv(EnvBase):
                 "torchrl.envs.SerialEnv/ParallelEnv over several ManiSkillEnv for more CPU envs, "
                 "or sim_backend=physx_cuda."
             )
-        ensure_env_ready(env_id, env_kwargs or {})
         import mani_skill.envs  # noqa: F401  (registers the environments)
         import drs_torchrl.envs.variants  # noqa: F401  (registers drs-torchrl's task variants)
+        ensure_env_ready(env_id, env_kwargs or {})
 
         kwargs = dict(env_kwargs or {})
         make_kwargs = dict(
@@ -98,6 +107,8 @@ class ManiSkillEnv(EnvBase):
         self.num_envs = num_envs
         self.gpu = gpu
         self.observation_key = observation_key
+        self.task_observation_key = task_observation_key
+        self.variant_names: list[str] | None = getattr(self._gym_env.unwrapped, "variant_names", None)
         self._sim_device = torch.device("cuda" if gpu else "cpu")
         batch = torch.Size([num_envs]) if gpu else torch.Size([])
         super().__init__(device=device if device is not None else self._sim_device, batch_size=batch)
@@ -131,6 +142,13 @@ class ManiSkillEnv(EnvBase):
             )
         for k in self.info_keys:
             obs[k] = Categorical(2, shape=(*b, 1), dtype=torch.bool, device=self.device)
+        if self.variant_names:
+            obs["variant_index"] = Categorical(len(self.variant_names), shape=(*b, 1), dtype=torch.int64, device=self.device)
+        if self.task_observation_key:
+            task_obs = getattr(self._gym_env.unwrapped, "task_observation", None)
+            if task_obs is None:
+                raise TypeError(f"{self.env_id} has no task_observation(); task_observation_key needs one of drs-torchrl's task envs")
+            obs[self.task_observation_key] = Unbounded(shape=(*b, task_obs().shape[-1]), dtype=torch.float32, device=self.device)
         self.observation_spec = Composite(obs, shape=b, device=self.device)
         self.action_spec = Bounded(
             low=torch.tensor(np.broadcast_to(act_space.low, act_space.shape), dtype=torch.float32),
@@ -160,6 +178,11 @@ class ManiSkillEnv(EnvBase):
         for k in self.info_keys:
             v = torch.as_tensor(info[k]).to(torch.bool).reshape(*self.batch_size, 1)
             out[k] = v.to(self.device)
+        u = self._gym_env.unwrapped
+        if self.variant_names:
+            out["variant_index"] = u.variant_index.to(torch.int64).reshape(*self.batch_size, 1).to(self.device, copy=True)
+        if self.task_observation_key:
+            out[self.task_observation_key] = u.task_observation().to(torch.float32).reshape(*self.batch_size, -1).to(self.device)
 
     # ------------------------------------------------------------------ API
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:

@@ -18,14 +18,24 @@ class TaskFamily:
 
     Attributes:
         name: registry key (``env=<name>`` on the command line).
-        env_id: ManiSkill environment id that the variants parameterise.
+        env_id: ManiSkill environment id that the variants parameterise (a variant may name its own
+            ``env_id``; the variants of one split must then agree on it).
         stage_keys: ordered stage indicators (Appendix A); the last one is success. Stage ``k`` of a
             state is the number of (monotone) indicators that hold, so ``N = len(stage_keys)``.
         info_keys: info entries copied into the TensorDict (at least ``stage_keys``).
         reward_in_keys: observation entries the learned reward reads.
-        variants: named variants, each a dict of environment keyword arguments.
+        variants: named variants, each a dict of environment keyword arguments (a ``control_mode``
+            entry overrides the family's for that variant).
         train_variants / test_variants: disjoint variant names for reward learning / reuse.
         control_mode, max_episode_steps: as in the paper's setup (EE delta position control).
+        backend: simulator that builds ``env_id``: ``"maniskill"`` (ManiSkill3/SAPIEN) or
+            ``"gymnasium"`` (a Gymnasium env through TorchRL's ``GymWrapper``, e.g. the MuJoCo
+            locomotion family of Appendix G; see ``drs_torchrl.envs.gym_family``).
+        pooled: the env takes all variants of a split (``variants=[...]``, ``variant_names=[...]``)
+            and draws one per episode (``drs_torchrl.envs.variants.pool``). Otherwise
+            ``env.split=train|test`` means the split's first variant.
+        task_observation_key: if set, the env also writes its robot-agnostic task state under
+            this key (name it in ``reward_in_keys`` for rewards that transfer between robots).
     """
 
     name: str
@@ -40,8 +50,13 @@ class TaskFamily:
     max_episode_steps: int = 50
     description: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
+    backend: str = "maniskill"
+    pooled: bool = False
+    task_observation_key: str | None = None
 
     def __post_init__(self):
+        if self.backend not in ("maniskill", "gymnasium"):
+            raise ValueError(f"family {self.name!r}: backend must be 'maniskill' or 'gymnasium', got {self.backend!r}")
         if not self.stage_keys:
             raise ValueError(f"family {self.name!r}: stage_keys must name at least the success indicator")
         overlap = set(self.train_variants) & set(self.test_variants)
@@ -58,6 +73,38 @@ class TaskFamily:
     @property
     def all_info_keys(self) -> tuple[str, ...]:
         return tuple(dict.fromkeys((*self.info_keys, *self.stage_keys)))
+
+    def split_variants(self, split: str) -> tuple[str, ...]:
+        """Variant names of ``split``: ``"train"``, ``"test"`` or one variant's name."""
+        if split == "train":
+            return self.train_variants
+        if split == "test":
+            return self.test_variants
+        if split not in self.variants:
+            self.variant_kwargs(split)  # raises the KeyError naming the known variants
+        return (split,)
+
+    def env_args(self, split: str, overrides: dict | None = None) -> dict[str, Any]:
+        """What builds the env of ``split``: ``env_id``, ``env_kwargs`` and ``control_mode`` (None: the family's).
+
+        A pooled family gets every variant of the split (``env_kwargs = {"variants": [...],
+        "variant_names": [...]}``, ``overrides`` applied to each), drawn per episode by the env;
+        any other family the split's first variant's kwargs, as :meth:`variant_kwargs`.
+        """
+        names = self.split_variants(split) if self.pooled else (split,)
+        kwargs = [self.variant_kwargs(n, overrides) for n in names]
+        special = {}
+        for key, default in (("env_id", self.env_id), ("control_mode", None)):
+            values = [kw.pop(key, default) for kw in kwargs]
+            if any(v != values[0] for v in values):
+                raise ValueError(f"family {self.name!r}: the variants of split {split!r} differ in {key} ({values}); "
+                                 "one env cannot draw among them per episode")
+            special[key] = values[0]
+        if self.pooled:
+            env_kwargs = {"variants": kwargs, "variant_names": list(names)}
+        else:
+            env_kwargs = kwargs[0]
+        return {"env_id": special["env_id"], "env_kwargs": env_kwargs, "control_mode": special["control_mode"]}
 
     def variant_kwargs(self, variant: str, overrides: dict | None = None) -> dict[str, Any]:
         """Environment kwargs of ``variant`` (``"train"``/``"test"`` mean the split's first variant)."""
@@ -94,3 +141,12 @@ def list_families() -> list[str]:
 
 # one module per family; each registers itself on import
 from drs_torchrl.tasks import pick_cube  # noqa: E402,F401
+from drs_torchrl.tasks import pick_and_place  # noqa: E402,F401
+from drs_torchrl.tasks import turn_valve  # noqa: E402,F401
+from drs_torchrl.tasks import stack_cube  # noqa: E402,F401
+from drs_torchrl.tasks import place_sphere  # noqa: E402,F401
+from drs_torchrl.tasks import cross_robot  # noqa: E402,F401
+from drs_torchrl.tasks import pick_ycb  # noqa: E402,F401
+from drs_torchrl.tasks import turn_faucet  # noqa: E402,F401
+from drs_torchrl.tasks import open_cabinet_door  # noqa: E402,F401
+from drs_torchrl.tasks import half_cheetah  # noqa: E402,F401

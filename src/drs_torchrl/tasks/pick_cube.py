@@ -1,4 +1,8 @@
-"""``pick_cube``: Panda picks a cube of one of four sizes and holds it at a goal (Appendix A)."""
+"""``pick_cube``: Panda picks a cube of one of four sizes and holds it at a goal (Appendix A).
+
+``env.split=train`` draws the cube size of every episode from the training sizes (2 and 2.5 cm),
+``env.split=test`` from the held-out ones (1.5 and 1.75 cm); a variant name fixes one size.
+"""
 from drs_torchrl.tasks import TaskFamily, register_family
 
 register_family(
@@ -17,6 +21,7 @@ register_family(
         },
         train_variants=("cube_2cm", "cube_2_5cm"),
         test_variants=("cube_1_5cm", "cube_1_75cm"),
+        pooled=True,
         extra={"demo_solver": "mani_skill.examples.motionplanning.panda.solutions.pick_cube:solve"},
     )
 )

@@ -148,11 +148,12 @@ class Trainer:
             self.env.append_transform(reward.frozen)
             self.eval_env.append_transform(reward.frozen.clone())
         if phase == "learn" and reward.name == "drs":
+            split_args = family.env_args(cfg.env.split, env_kwargs["variant_overrides"])  # all variants of a split
             meta = {
                 "family": family.name,
-                "env_id": family.env_id,
+                "env_id": split_args["env_id"],
                 "variant": cfg.env.split,
-                "variant_kwargs": family.variant_kwargs(cfg.env.split, env_kwargs["variant_overrides"]),
+                "variant_kwargs": split_args["env_kwargs"],
                 "stage_keys": list(family.stage_keys),
                 "seed": int(cfg.seed),
             }

@@ -1,0 +1,207 @@
+"""Task families on the real simulator: every family this machine can run, and the asset-backed ones' errors.
+
+For each runnable family: the train and test splits build, pass TorchRL's spec check, step, carry
+stage labels; the splits are disjoint; every episode draws a variant of the split and the scene
+really changes with it; a variant override from the Hydra config reaches the simulator. The
+asset-backed families (YCB, PartNet-Mobility) fail at once with the download command.
+"""
+import time
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+from torchrl.envs.utils import check_env_specs
+
+from drs_torchrl.envs import MissingAssetError, make_family_env
+from drs_torchrl.envs.doctor import missing_assets
+from drs_torchrl.tasks import get_family, list_families
+
+pytestmark = pytest.mark.sim
+
+CONF = Path(__file__).resolve().parents[1] / "conf"
+RUNNABLE = ["pick_cube", "pick_and_place", "turn_valve", "stack_cube", "place_sphere", "cross_robot"]
+ASSET_BACKED = {"pick_ycb": "ycb", "turn_faucet": "partnet_mobility_faucet", "open_cabinet_door": "partnet_mobility_cabinet"}
+# (variant parameter, value) overridden from the command line in the config test
+OVERRIDE = {
+    "pick_cube": ("cube_half_size", 0.03),
+    "pick_and_place": ("goal_thresh", 0.05),
+    "turn_valve": ("turning_thresh", 0.05),
+    "stack_cube": ("cube_b_half_size", 0.03),
+    "place_sphere": ("sphere_radius", 0.011),
+    "cross_robot": ("goal_thresh", 0.05),
+}
+
+
+def _object_height(u) -> float | None:
+    """Height above the table of the episode's object (None for the valve)."""
+    for name in ("cubeA", "obj", "cube"):
+        if hasattr(type(u), name):
+            return float(getattr(u, name).pose.p[0, 2])
+    return None
+
+
+def _expected_height(family, variant: dict) -> float | None:
+    from drs_torchrl.envs.variants.pool import ObjectSpec
+
+    if family.name == "pick_cube":
+        return variant["cube_half_size"]
+    if family.name in ("pick_and_place", "cross_robot"):
+        return ObjectSpec.make(variant["object_shape"], variant["object_size"]).rest_height
+    if family.name == "stack_cube":
+        return variant["cube_a_half_size"]
+    if family.name == "place_sphere":
+        return variant["sphere_radius"]
+    return None
+
+
+@pytest.fixture(scope="module", params=RUNNABLE)
+def family_envs(request):
+    fam = get_family(request.param)
+    envs = {split: make_family_env(fam, split, seed=3) for split in ("train", "test")}
+    yield fam, envs
+    for e in envs.values():
+        e.close()
+
+
+def test_splits_build_step_and_label_stages(family_envs):
+    fam, envs = family_envs
+    assert set(fam.train_variants).isdisjoint(fam.test_variants) and fam.train_variants and fam.test_variants
+    for split, env in envs.items():
+        check_env_specs(env)
+        td = env.rand_step(env.reset())
+        td = env.rollout(4, break_when_any_done=False)
+        for k in (*fam.stage_keys, "stage", "stage_indicators", "variant_index"):
+            assert ("next", k) in td.keys(True), (fam.name, split, k)
+        assert td["next", "stage_indicators"].shape[-1] == fam.num_stages
+        assert 0 <= int(td["next", "stage"].min()) and int(td["next", "stage"].max()) <= fam.num_stages
+        for k in fam.reward_in_keys:
+            assert k in env.observation_spec.keys(True), (fam.name, k)
+    # train and test share the observation and action layout (what reward reuse needs) unless the robot changes
+    if fam.name != "cross_robot":
+        assert envs["train"].observation_spec["observation"].shape == envs["test"].observation_spec["observation"].shape
+
+
+def test_every_episode_draws_a_variant_of_the_split(family_envs):
+    fam, envs = family_envs
+    for split, env in envs.items():
+        names = fam.split_variants(split)
+        base = env.base_env
+        assert base.variant_names == list(names)
+        seen = []
+        for _ in range(16):
+            td = env.reset()
+            idx = int(td["variant_index"])
+            seen.append(idx)
+            u = base.unwrapped
+            assert u.current_variant == names[idx]
+            want = _expected_height(fam, fam.variants[names[idx]])
+            if want is not None:  # the scene has the variant's object on the table
+                assert _object_height(u) == pytest.approx(want, abs=2e-3), (fam.name, names[idx])
+            if fam.name == "turn_valve":
+                level = fam.variants[names[idx]]["level"]
+                assert u._valve_level[u._active_valve] == level
+                assert float(u.success_threshold[0]) == pytest.approx({0: 1.5708, 4: 6.2832}.get(level, 3.1416), abs=1e-3)
+        assert len(set(seen)) >= 2, f"{fam.name}/{split}: 16 resets drew only {set(seen)}"
+
+
+def test_a_variant_override_from_the_config_reaches_the_simulator(family_envs):
+    fam, _ = family_envs
+    key, value = OVERRIDE[fam.name]
+    with initialize_config_dir(config_dir=str(CONF), version_base=None):
+        cfg = compose("learn", overrides=[f"env={fam.name}", f"+env.variant_overrides.{key}={value}", "env.split=test"])
+    assert cfg.env.family == fam.name
+    env = make_family_env(fam, cfg.env.split, variant_overrides=OmegaConf.to_container(cfg.env.variant_overrides), seed=0)
+    try:
+        u = env.base_env.unwrapped
+        for _ in range(3):
+            env.reset()
+            assert float(u._param(key)[0]) == pytest.approx(value)
+        if key in ("cube_half_size", "sphere_radius"):
+            assert _object_height(u) == pytest.approx(value, abs=2e-3)
+        if key == "cube_b_half_size":
+            assert float(u.cubeB.pose.p[0, 2]) == pytest.approx(value, abs=2e-3)
+    finally:
+        env.close()
+
+
+def test_one_named_variant_stays_fixed():
+    fam = get_family("pick_and_place")
+    env = make_family_env(fam, "sphere_r2cm", seed=0)
+    try:
+        for _ in range(4):
+            env.reset()
+            assert env.base_env.unwrapped.current_variant == "sphere_r2cm"
+            assert _object_height(env.base_env.unwrapped) == pytest.approx(0.02, abs=2e-3)
+    finally:
+        env.close()
+
+
+def test_cross_robot_reward_reads_robot_agnostic_entries_and_fits_every_robot():
+    from drs_torchrl.rewards import new_drs_reward
+    from drs_torchrl.transforms import DrSReward
+
+    fam = get_family("cross_robot")
+    assert "task_observation" in fam.reward_in_keys and "observation" not in fam.reward_in_keys
+    envs = [make_family_env(fam, split, seed=0) for split in ("train", "so100_cube_1_25cm")]
+    try:
+        panda, so100 = envs
+        assert panda.observation_spec["observation"].shape != so100.observation_spec["observation"].shape
+        assert panda.action_spec.shape != so100.action_spec.shape
+        reward_cfg = OmegaConf.load(CONF / "reward" / "drs.yaml")
+        reward = new_drs_reward(reward_cfg, fam, panda.observation_spec, {"family": fam.name})
+        assert list(reward.reward_in_keys) == list(fam.reward_in_keys)  # the trainer's path passes them through
+        reward.check_compatible(so100.observation_spec, num_stages=fam.num_stages, family=fam.name)
+        td = so100.rollout(3)
+        assert td["next", "task_observation"].shape == (3, 19)
+        assert reward.reward(td["next"]).shape == (3, 1)
+        # the TCP-to-object vector is what the simulator says, in the robot-independent frame
+        u = so100.base_env.unwrapped
+        t = u.task_observation()[0]
+        assert torch.allclose(t[13:16], u.obj.pose.p[0] - u.agent.tcp_pose.p[0], atol=1e-5)
+        assert isinstance(DrSReward.from_spec(panda.observation_spec, 3, list(fam.reward_in_keys)), DrSReward)
+    finally:
+        for e in envs:
+            e.close()
+
+
+def test_every_family_has_a_config_and_asset_families_are_registered():
+    for name in list_families():
+        if name == "half_cheetah":
+            continue
+        cfg = OmegaConf.load(CONF / "env" / f"{name}.yaml")
+        assert cfg.family == name
+    assert set(RUNNABLE) | set(ASSET_BACKED) <= set(list_families())
+    faucet, cabinet = get_family("turn_faucet"), get_family("open_cabinet_door")
+    assert (len(faucet.train_variants), len(faucet.test_variants)) == (10, 50)  # the paper's split
+    assert (len(cabinet.train_variants), len(cabinet.test_variants)) == (4, 6)
+
+
+@pytest.mark.parametrize("name", sorted(ASSET_BACKED))
+def test_asset_backed_families_fail_at_once_with_the_download_command(name):
+    fam = get_family(name)
+    args = fam.env_args("train")
+    if not missing_assets(args["env_id"], args["env_kwargs"]):
+        pytest.skip(f"the {ASSET_BACKED[name]} assets are downloaded on this machine")
+    for split in ("train", "test"):
+        t0 = time.time()
+        with pytest.raises(MissingAssetError) as e:
+            make_family_env(fam, split)
+        assert time.time() - t0 < 10
+        assert f"python -m mani_skill.utils.download_asset {ASSET_BACKED[name]} -y" in str(e.value)
+
+
+@pytest.mark.parametrize("name", ["pick_and_place", "stack_cube", "place_sphere", "cross_robot"])
+def test_motion_planner_demos_for_the_new_families(name):
+    from drs_torchrl.demos import check_demos, record_demos
+
+    fam = get_family(name)
+    states, meta = record_demos(fam, "train", 1, seed=0, progress=False)
+    assert bool(states["success"][-1]) and int(states["stage"][-1]) == fam.num_stages
+    assert meta["env_id"] == fam.env_id and meta["variant_kwargs"]["variant_names"] == list(fam.train_variants)
+    shapes = {"observation": 48 if name == "stack_cube" else 39 if name == "place_sphere" else 42, "stage_indicators": 3}
+    if fam.task_observation_key:
+        shapes[fam.task_observation_key] = 19
+        assert states[fam.task_observation_key].shape == (states.shape[0], 19)
+    check_demos(meta, fam, {k: shapes[k] for k in fam.reward_in_keys})
