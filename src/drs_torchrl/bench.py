@@ -165,7 +165,8 @@ COLLECTORS = {"inproc": "torchrl.collectors.Collector", "background": "torchrl.c
 
 def bench_learn(algo: str, frames: int, overrides: list[str], collector: str = "inproc") -> dict:
     """Phase-1 speed after learning starts: env steps/s and updates/s over ``frames`` steps, with the
-    collector in this process (``inproc``) or in a background process (``background``)."""
+    collector in this process (``inproc``) or in background processes (``background``, ``background2``);
+    ``<collector>:T`` sets the learner's torch threads to ``T``."""
     import tempfile
 
     from hydra import compose, initialize_config_dir
@@ -174,8 +175,11 @@ def bench_learn(algo: str, frames: int, overrides: list[str], collector: str = "
     from drs_torchrl.trainers.loop import Trainer
 
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
-        workers = ["+algo.collector.num_workers=2"] if collector == "background2" else []
-        cfg = compose("learn", overrides=[f"algo={algo}", f"algo.collector._target_={COLLECTORS[collector]}", *workers, *overrides])
+        kind, _, threads = collector.partition(":")  # e.g. "background:2": the learner keeps 2 torch threads
+        extra = ["+algo.collector.num_workers=2"] if kind == "background2" else []
+        if threads:
+            extra.append(f"+algo.collector.num_threads={int(threads)}" if kind != "inproc" else f"torch_threads={int(threads)}")
+        cfg = compose("learn", overrides=[f"algo={algo}", f"algo.collector._target_={COLLECTORS[kind]}", *extra, *overrides])
     start = int(cfg.algo.learning_starts)
     cfg.total_frames = start + frames
     cfg.eval.interval = 10**9
@@ -262,8 +266,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--algos", nargs="*", default=["sac_cpu", "sac_paper"])
     p.add_argument("--collect-collectors", nargs="*", default=["inproc", "background", "background2"], choices=sorted(COLLECTORS),
                    help="collectors for the collection-only measurement")
-    p.add_argument("--collectors", nargs="*", default=["inproc", "background"], choices=sorted(COLLECTORS),
-                   help="collectors for the phase-1 measurements")
+    p.add_argument("--collectors", nargs="*", default=["inproc", "background", "background:2"],
+                   help="collectors for the phase-1 measurements: inproc, background, background2 (two workers), "
+                        "optionally with ':T' for T learner torch threads (default: a background collector leaves "
+                        "the learner cpu_count - workers threads)")
     p.add_argument("--stage-sizes", nargs="*", type=int, default=[1_000, 10_000, 100_000, 1_000_000],
                    help="stage-buffer sizes for the sampling-time sweep (empty: skip the component timings)")
     p.add_argument("--out", default="results/bench")

@@ -431,6 +431,8 @@ class Trainer:
         remaining = total - self.frames
         if remaining > 0:
             self.collector = self.make_collector(remaining)
+            if self.collects_in_background and not self.env.is_closed:
+                self.env.close()  # its specs were all the trainer needed; the worker has its own simulator
         bar = tqdm(total=total, initial=self.frames, desc=f"drs-{self.phase}", unit="step",
                    disable=not cfg.logger.progress_bar, dynamic_ncols=True)
         t0, frames0 = time.perf_counter(), self.frames
