@@ -12,5 +12,5 @@ def partnet_meta(category: str) -> dict:
     spec = importlib.util.find_spec("mani_skill")
     if spec is None or not spec.submodule_search_locations:
         return {}
-    path = Path(list(spec.submodule_search_locations)[0]) / "assets" / "partnet_mobility" / "meta" / f"info_{category}_train.json"
+    path = Path(next(iter(spec.submodule_search_locations))) / "assets" / "partnet_mobility" / "meta" / f"info_{category}_train.json"
     return json.loads(path.read_text()) if path.is_file() else {}

@@ -12,6 +12,4 @@ ones. These envs take a pool of variants and draw one per episode (``pool.py``):
 
 Importing this package registers them with ManiSkill.
 """
-from drs_torchrl.envs.variants import pick  # noqa: F401
-from drs_torchrl.envs.variants import place_sphere, stack_cube, valve  # noqa: F401,E402
-from drs_torchrl.envs.variants import assets  # noqa: F401,E402
+from drs_torchrl.envs.variants import assets, pick, place_sphere, stack_cube, valve  # noqa: F401

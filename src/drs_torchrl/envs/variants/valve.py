@@ -106,7 +106,7 @@ class RotateValveVariantsEnv(VariantPoolMixin, RotateValveEnv):
     def _initialize_actors(self, env_idx: torch.Tensor):
         with torch.device(self.device):
             b = len(env_idx)
-            vidx = self._draw_variants(env_idx)
+            self._draw_variants(env_idx)
             level = self._param("level", env_idx).long()
             if self.num_envs == 1:
                 lvl = int(level[0])
@@ -152,7 +152,7 @@ class RotateValveVariantsEnv(VariantPoolMixin, RotateValveEnv):
         rotation = (self.valve.qpos - self.rest_qpos)[:, 0]
         progress = rotation * self.rotate_direction
         turning = (progress - self._prev_progress) > self._param("turning_thresh")
-        return dict(success=progress > self.success_threshold, is_valve_turning=turning, valve_rotation=rotation)
+        return {"success": progress > self.success_threshold, "is_valve_turning": turning, "valve_rotation": rotation}
 
 
 if "RotateValveVariants-v1" not in REGISTERED_ENVS:

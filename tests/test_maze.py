@@ -1,0 +1,256 @@
+"""The paper's navigation experiment (Appendix, "Navigation"): the three-room maze env, the reward
+on (s, a) and ``drs-maze`` end to end (learn on the train map, reuse on the test map, report)."""
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from tensordict import TensorDict
+from torchrl.envs.utils import check_env_specs
+
+from drs_torchrl.data import StageBuffers
+from drs_torchrl.envs.maze import (
+    BOTTOM_ROOM,
+    GATES,
+    MOVES,
+    OBS_DIMS,
+    SIZE,
+    TOP_ROOM,
+    WALL_ROWS,
+    ThreeRoomMaze,
+    make_grid,
+    observation,
+)
+from drs_torchrl.objectives import DiscriminatorLoss
+from drs_torchrl.trainers.maze import (
+    MazeConfigError,
+    StateActionReward,
+    all_state_actions,
+    demo_episodes,
+    dense_reward_table,
+    make_env,
+    report,
+    reward_diagnostics,
+    train,
+    validate,
+)
+from drs_torchrl.transforms import DrSReward
+
+ROOT = Path(__file__).resolve().parents[1]
+UP, DOWN, LEFT, RIGHT, STAY = range(5)
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+def onehot(actions, n=5):
+    return torch.nn.functional.one_hot(torch.as_tensor(actions), n).to(torch.bool)
+
+
+@pytest.mark.parametrize("coords", sorted(OBS_DIMS))
+@pytest.mark.parametrize("map_name", sorted(GATES))
+def test_specs_pass_torchrl_checks_with_the_stage_label(map_name, coords):
+    env = ThreeRoomMaze(map_name, num_envs=4, max_steps=10, seed=0, coords=coords)
+    check_env_specs(env)
+    labelled = make_env(map_name, 4, 10, 0, "drs", coords)
+    check_env_specs(labelled)
+    assert labelled.observation_spec["observation"].shape == (4, OBS_DIMS[coords])
+    assert labelled.observation_spec["stage"].shape == (4, 1)
+    assert env.action_spec.shape == (4, 5)
+
+
+def test_train_and_test_maps_differ_only_in_the_two_gates():
+    train, test = make_grid("train"), make_grid("test")
+    assert train.shape == test.shape == (SIZE, SIZE)
+    diff = (train != test).nonzero().tolist()
+    for name, grid in (("train", train), ("test", test)):
+        for row, gate in zip(WALL_ROWS, GATES[name]):
+            assert (~grid[row]).nonzero().reshape(-1).tolist() == [gate]  # one gate per inner wall
+    assert GATES["train"][0] != GATES["test"][0] and GATES["train"][1] != GATES["test"][1]
+    expected = sorted([[r, c] for r, g1, g2 in zip(WALL_ROWS, GATES["train"], GATES["test"]) for c in (g1, g2)])
+    assert sorted(diff) == expected
+
+
+def test_dynamics_walls_success_truncation_and_partial_reset():
+    env = ThreeRoomMaze("train", num_envs=3, max_steps=4, seed=3)
+    td = env.reset()
+    rows = env.pos[:, 0]
+    assert ((rows >= BOTTOM_ROOM[0]) & (rows <= BOTTOM_ROOM[1])).all()
+    assert ((env.goal[:, 0] >= TOP_ROOM[0]) & (env.goal[:, 0] <= TOP_ROOM[1])).all()
+    # env 0 under the lower wall away from the gate, env 1 right below the goal, env 2 anywhere
+    env.pos[0] = torch.tensor([12, 5])
+    env.goal[1] = torch.tensor([2, 8])
+    env.pos[1] = torch.tensor([3, 8])
+    td["action"] = onehot([UP, UP, STAY])
+    out = env.step(td)["next"]
+    assert env.pos[0].tolist() == [12, 5]  # bumped into the wall: stays
+    assert out["success"].reshape(-1).tolist() == [False, True, False]
+    assert out["terminated"].reshape(-1).tolist() == [False, True, False]
+    assert out["reward"].reshape(-1).tolist() == [0.0, 1.0, 0.0]
+    # observation: agent (x=col, y=16-row) and the wall above in the patch
+    obs = out["observation"][0]
+    assert obs[:SIZE].argmax() == 5 and obs[SIZE:2 * SIZE].argmax() == SIZE - 1 - 12
+    assert obs[-9:].reshape(3, 3)[0].tolist() == [1.0, 1.0, 1.0] and obs[-9:][4] == 0
+    # partial reset: only env 1 restarts; the others keep their state and step counter
+    pos0 = env.pos[0].clone()
+    env.reset(TensorDict({"_reset": torch.tensor([[False], [True], [False]])}, batch_size=[3]))
+    assert env.pos[0].tolist() == pos0.tolist() and env.t.tolist() == [1, 0, 1]
+    for _ in range(3):
+        out = env.step(TensorDict({"action": onehot([STAY, STAY, STAY])}, batch_size=[3]))["next"]
+    assert out["truncated"].reshape(-1).tolist() == [True, False, True]
+    assert not out["terminated"].any()
+
+
+def test_demonstrations_are_shortest_paths_that_end_in_success():
+    env = ThreeRoomMaze("train", num_envs=1)
+    dist = env.shortest_distances()
+    for ep in demo_episodes("train", 5, seed=1, coords="scalar"):
+        nxt = ep["next"]
+        assert nxt["stage"][-1].item() == 1 and nxt["stage"][:-1].sum() == 0
+        first = nxt["observation"][0]
+        col, row = round(float(first[0]) * 16), 16 - round(float(first[1]) * 16)
+        gcol, grow = round(float(first[2]) * 16), 16 - round(float(first[3]) * 16)
+        gi = [tuple(g) for g in env.goal_cells.tolist()].index((grow, gcol))
+        assert len(nxt["stage"]) == dist[gi, row, col]  # as many steps as the shortest path
+
+
+def test_state_action_reward_reads_s_and_a_at_the_root_and_the_stage_of_s_prime():
+    torch.manual_seed(0)
+    obs_dim = OBS_DIMS["onehot"]
+    r = DrSReward(1, ["observation", "action"], {"observation": obs_dim, "action": 5}, formula="rescaled")
+    r.discriminators.trained[:] = True
+    B = 6
+    td = TensorDict({
+        "observation": torch.rand(B, obs_dim), "action": onehot([0, 1, 2, 3, 4, 0]),
+        "next": {"observation": torch.rand(B, obs_dim), "stage": torch.tensor([[0]] * 5 + [[1]]), "reward": torch.zeros(B, 1)},
+    }, batch_size=[B])
+    StateActionReward(r)(td)
+    x = torch.cat([td["observation"], td["action"].float()], -1)
+    expected = r.alpha * torch.tanh(r.discriminators(x)) - 2.0
+    assert torch.allclose(td["next", "reward"][:5], expected[:5])
+    assert td["next", "reward"][5].item() == -1.0  # success: (1 + 0) / 1 - 2, no dense term
+
+
+def test_discriminator_on_maze_state_actions_prefers_the_demonstrated_moves():
+    """Algorithm 1's reward step alone on (s, a): positives from shortest-path demonstrations,
+    negatives from random-walk failures, then argmax_a R(s, a) agrees with shortest paths far
+    more often than chance (about 1/3 of actions are optimal in a cell)."""
+    torch.manual_seed(0)
+    reward = DrSReward(1, ["observation", "action"], {"observation": OBS_DIMS["onehot"], "action": 5}, formula="rescaled")
+    buffers = StageBuffers(1, ["observation", "action"], capacity=20000, batch_size=256)
+    for ep in demo_episodes("train", 60, seed=0):
+        buffers.add_trajectory(ep, demo=True)
+    env = make_env("train", 64, 60, 0, "drs")
+    fail = env.rollout(60)  # random actions: no success within 60 steps from the bottom room
+    assert not fail["next", "success"].any()
+    flat = fail.reshape(-1)
+    buffers.add_trajectory(TensorDict({"next": {"observation": flat["observation"], "action": flat["action"].float(),
+                                                "stage": flat["next", "stage"]}}, batch_size=flat.batch_size))
+    loss = DiscriminatorLoss(reward.discriminators, ["observation", "action"], early_stop_threshold=None)
+    opt = torch.optim.Adam(reward.discriminators.parameters(), lr=3e-3)
+    for _ in range(300):
+        out = loss(buffers.sample_discriminator_batch())
+        opt.zero_grad()
+        out["loss_discriminator"].backward()
+        opt.step()
+    assert out["accuracy_0"] > 0.8
+    # in the bottom room (where both sides have data), argmax_a R(s, a) is a shortest-path move far
+    # more often than a random move is
+    env = ThreeRoomMaze("train", num_envs=1)
+    dist = env.shortest_distances()
+    hits, chance, n = 0.0, 0.0, 0
+    for gi in range(0, len(env.goal_cells), 7):
+        cells, r = dense_reward_table(reward, "train", tuple(env.goal_cells[gi].tolist()))
+        bottom = cells[:, 0] >= BOTTOM_ROOM[0]
+        cells, r = cells[bottom], r[bottom]
+        nxt = cells.unsqueeze(1) + MOVES  # (n, 5, 2)
+        nxt = torch.where(env.grid[nxt[..., 0], nxt[..., 1]].unsqueeze(-1), cells.unsqueeze(1), nxt)
+        good = dist[gi][nxt[..., 0], nxt[..., 1]] == dist[gi][cells[:, 0], cells[:, 1]].unsqueeze(1) - 1
+        hits += float(good.gather(1, r.argmax(-1, keepdim=True)).float().sum())
+        chance += float(good.float().mean(-1).sum())
+        n += len(cells)
+    assert hits / n > chance / n + 0.3, (hits / n, chance / n)
+    assert set(reward_diagnostics(reward, "train", 60)) == {"optimal_action_rate", "greedy_success"}
+
+
+def test_config_errors_name_the_fix():
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base=None):
+        with pytest.raises(MazeConfigError, match="reward.checkpoint"):
+            validate(compose("maze", overrides=["phase=reuse", "reward.name=drs"]))
+        with pytest.raises(MazeConfigError, match="phase=learn learns the DrS reward"):
+            validate(compose("maze", overrides=["phase=learn", "reward.name=sparse"]))
+        with pytest.raises(MazeConfigError, match="multiple of num_envs"):
+            validate(compose("maze", overrides=["num_envs=7"]))
+
+
+TINY = ["num_envs=8", "max_steps=40", "total_frames=1024", "dqn.frames_per_batch=128", "dqn.learning_starts=256",
+        "dqn.batch_size=32", "dqn.utd=0.25", "eval.interval=512", "eval.episodes=8", "verbose=false",
+        "reward.stage_buffer_size=4000", "reward.disc.batch_size=32"]
+
+
+def test_drs_maze_learn_then_reuse_then_report(tmp_path):
+    learn_dir = tmp_path / "study" / "learn-s0"
+    env = {**os.environ, "HYDRA_FULL_ERROR": "1"}
+    exe = Path(sys.executable).parent / "drs-maze"
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "drs_torchrl.trainers.maze"]
+    proc = subprocess.run([*cmd, "phase=learn", "demos=10", f"hydra.run.dir={learn_dir}", *TINY],
+                          capture_output=True, text=True, env=env, timeout=120, check=False)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "reward checkpoint" in proc.stdout
+    for f in ("config.yaml", "train.csv", "summary.json", "reward.pt", "policy.pt", "reward_map.png"):
+        assert (learn_dir / f).is_file(), f
+    assert (learn_dir / "reward_map.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    rows = list(csv.DictReader((learn_dir / "train.csv").read_text().splitlines()))
+    assert [int(r["frames"]) for r in rows] == [0, 512, 1024]
+    assert {"eval_success", "train_success", "disc_loss", "success_buffer"} <= set(rows[0])
+    summ = json.loads((learn_dir / "summary.json").read_text())
+    assert summ["map"] == "train" and summ["frames"] == 1024 and summ["disc_updates"] > 0
+    assert summ["stage_buffer_counts"][1] >= 10  # the demonstrations sit in the success buffer
+    reward = DrSReward.from_checkpoint(learn_dir / "reward.pt")
+    assert reward.reward_in_keys == ["observation", "action"] and reward.metadata["map"] == "train"
+    assert reward.discriminators.trained.all()
+
+    # phase 2 and the baseline through the same function the CLI calls
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base=None):
+        for name, extra in (("drs", [f"reward.checkpoint={learn_dir / 'reward.pt'}"]), ("sparse", [])):
+            cfg = compose("maze", overrides=["phase=reuse", f"reward.name={name}", *extra, *TINY])
+            s = train(cfg, tmp_path / "study" / f"reuse-{name}-s0")
+            assert s["map"] == "test" and s["reward"] == name and s["frames"] == 1024
+        with pytest.raises(MazeConfigError, match="coords"):
+            cfg = compose("maze", overrides=["phase=reuse", "coords=scalar", f"reward.checkpoint={learn_dir / 'reward.pt'}", *TINY])
+            train(cfg, tmp_path / "bad")
+    assert (tmp_path / "study" / "reuse-drs-s0" / "reward_map.png").is_file()
+    assert not (tmp_path / "study" / "reuse-sparse-s0" / "reward.pt").exists()
+    # the frozen reward is the learned one: same values on every (s, a) of the test map
+    _, feats = all_state_actions("test", (2, 8))
+    frozen = DrSReward.from_checkpoint(learn_dir / "reward.pt")
+    assert torch.equal(frozen.discriminators(feats), reward.discriminators(feats))
+
+    out = report(tmp_path / "study", tmp_path / "results")
+    assert out["runs"] == 3
+    assert (tmp_path / "results" / "curves.png").read_bytes()[:4] == b"\x89PNG"
+    curves = list(csv.DictReader((tmp_path / "results" / "curves.csv").read_text().splitlines()))
+    assert {(r["phase"], r["reward"]) for r in curves} == {("learn", "drs"), ("reuse", "drs"), ("reuse", "sparse")}
+    table = (tmp_path / "results" / "table.md").read_text()
+    assert "| reuse | test | sparse |" in table and "| learn | train | drs |" in table
+
+
+def test_observation_matches_the_grid_for_every_cell():
+    grid = make_grid("test")
+    cells = (~grid).nonzero()
+    obs = observation(grid, cells, torch.tensor([2, 8]).expand(len(cells), 2), "onehot")
+    patch = obs[:, -9:].reshape(-1, 3, 3)
+    for (r, c), p in zip(cells.tolist(), patch):
+        assert p.bool().tolist() == grid[r - 1:r + 2, c - 1:c + 2].tolist()
+    # moves: the stay action keeps the cell, the others change it by one
+    assert MOVES.abs().sum(-1).tolist() == [1, 1, 1, 1, 0]
