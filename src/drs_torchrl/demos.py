@@ -56,6 +56,18 @@ def _solver(family: TaskFamily):
     return ref, getattr(importlib.import_module(module), fn)
 
 
+def _successful_episode(states: TensorDict, labeller, index: int) -> TensorDict | None:
+    """A demonstration's states cut at its first successful state and stage-labelled, with its
+    ``episode`` index and ``step`` numbers; ``None`` when it never succeeds."""
+    succ = states["success"].reshape(-1).nonzero()
+    if succ.numel() == 0:
+        return None
+    states = labeller(states[: int(succ[0]) + 1])
+    states.set("episode", torch.full((states.shape[0],), index, dtype=torch.long))
+    states.set("step", torch.arange(states.shape[0]))
+    return states
+
+
 def record_demos(family: TaskFamily, variant: str, num: int, *, seed: int = 0, variant_overrides: dict | None = None,
                  max_tries: int | None = None, progress: bool = True) -> tuple[TensorDict, dict]:
     """Run the family's solver until ``num`` successful episodes are recorded; returns (states, meta)."""
@@ -96,13 +108,9 @@ def record_demos(family: TaskFamily, variant: str, num: int, *, seed: int = 0, v
         s += 1
         if states is None:
             continue
-        succ = states["success"].reshape(-1).nonzero()
-        if succ.numel() == 0:
+        states = _successful_episode(states, labeller, len(episodes))
+        if states is None:
             continue
-        states = labeller(states[: int(succ[0]) + 1])
-        n = len(episodes)
-        states.set("episode", torch.full((states.shape[0],), n, dtype=torch.long))
-        states.set("step", torch.arange(states.shape[0]))
         episodes.append(states)
         lengths.append(states.shape[0])
         seeds.append(s - 1)
@@ -441,14 +449,10 @@ def load_maniskill_h5(path: str | Path, family: TaskFamily, variant: str = "trai
                     skipped += 1
                     continue
                 ep_states = TensorDict({k: torch.stack([r[k] for r in rows]) for k in rows[0]}, batch_size=[len(rows)])
-                succ = ep_states["success"].reshape(-1).nonzero()
-                if succ.numel() == 0:
+                ep_states = _successful_episode(ep_states, labeller, len(out))
+                if ep_states is None:
                     skipped += 1
                     continue
-                ep_states = labeller(ep_states[: int(succ[0]) + 1])
-                n = len(out)
-                ep_states.set("episode", torch.full((ep_states.shape[0],), n, dtype=torch.long))
-                ep_states.set("step", torch.arange(ep_states.shape[0]))
                 out.append(ep_states)
                 lengths.append(ep_states.shape[0])
                 seeds.append(None if seed is None else int(seed))

@@ -420,7 +420,7 @@ class Trainer:
         )
 
     def run(self) -> dict[str, Any]:
-        cfg, a = self.cfg, self.cfg.algo
+        cfg = self.cfg
         total = int(cfg.total_frames)
         log_every, eval_every = int(cfg.logger.interval), int(cfg.eval.interval)
         ckpt_every = int(cfg.checkpoint_interval)
