@@ -254,3 +254,32 @@ def test_observation_matches_the_grid_for_every_cell():
         assert p.bool().tolist() == grid[r - 1:r + 2, c - 1:c + 2].tolist()
     # moves: the stay action keeps the cell, the others change it by one
     assert MOVES.abs().sum(-1).tolist() == [1, 1, 1, 1, 0]
+
+
+def test_dense_baseline_reward_is_a_cost_shrinking_along_the_shortest_path():
+    env = ThreeRoomMaze("test", num_envs=2, max_steps=50, seed=0, dense_coef=1.0)
+    sparse = ThreeRoomMaze("test", num_envs=2, max_steps=50, seed=0)
+    td = env.reset()
+    dmax = float(env.shortest_distances().max())
+    goal = (2, 8)  # a top-room cell away from the walls
+    env.goal[:] = torch.tensor(goal)
+    # env 0 one step left of the goal, env 1 one step right of it: both moves reach the goal
+    env.pos[0] = torch.tensor([goal[0], goal[1] - 1])
+    env.pos[1] = torch.tensor([goal[0] + 1, goal[1]])
+    td["action"] = onehot([RIGHT, UP])
+    out = env.step(td)["next"]
+    assert out["success"].all() and torch.allclose(out["reward"], torch.ones(2, 1))  # d = 0 at the goal
+    # away from the goal: the cost is d(s') / d_max, and a step closer always earns more than a step away
+    rewards = {}
+    for a, d_next in ((UP, 1), (STAY, 2), (LEFT, 3)):
+        env.reset()
+        env.goal[:] = torch.tensor(goal)
+        env.pos[:] = torch.tensor([goal[0] + 2, goal[1]])  # two rows below the goal, same room
+        out = env.step(TensorDict({"action": onehot([a, a])}, batch_size=[2]))["next"]
+        assert torch.allclose(out["reward"], torch.full((2, 1), -d_next / dmax))
+        rewards[a] = float(out["reward"][0])
+    assert rewards[UP] > rewards[STAY] > rewards[LEFT]
+    # the sparse env (dense_coef=0) is unchanged: 0 a step
+    sparse.reset()
+    out = sparse.step(TensorDict({"action": onehot([STAY, STAY])}, batch_size=[2]))["next"]
+    assert (out["reward"] == 0).all()

@@ -8,7 +8,10 @@ Measures, on the same task and machine:
   * ``learn_<algo>``: phase 1 (SAC + discriminators, UTD of the config) after learning starts,
     env steps/s and gradient updates/s, for each algo config given;
   * ``plain``: the same algorithm as a plain single-file PyTorch loop (``drs_torchrl.plain_loop``)
-    at each config's batch size, side by side, and the pipeline's speed ratio over it.
+    at each config's batch size, side by side, and the pipeline's speed ratio over it;
+  * ``roofline``: the matrix-product FLOPs of one SAC update (counted by the profiler) against this
+    machine's measured GEMM rate at the update's shapes, which bounds phase-1 env steps/s for *any*
+    implementation of the algorithm on this machine (see :func:`roofline`).
 
 Writes ``results/bench/bench.json`` and ``results/bench/bench.md``. Usage::
 
@@ -117,12 +120,13 @@ def bench_components(algo: str, sizes: list[int], batch_reps: int = 50) -> dict:
         cfg = compose("learn", overrides=[f"algo={algo}", "total_frames=2048", "algo.learning_starts=100000",
                                           "eval.episodes=0", "logger.progress_bar=false", "logger.tensorboard=false",
                                           f"reward.stage_buffer_size={top}", "checkpoint_interval=1000000000"])
-    out: dict = {"algo": algo, "batch_size": int(cfg.algo.batch_size)}
+    out: dict = {"algo": algo, "batch_size": int(cfg.algo.batch_size), "width": int(max(cfg.algo.hidden))}
     with tempfile.TemporaryDirectory() as d:
         tr = Trainer(cfg, "learn", d)
         tr.run()  # 2048 real transitions in the replay and stage buffers
         tr = Trainer(cfg, "learn", d, resume=True)
         out["sac_update_ms"] = per_call_ms(tr._sac_step)
+        out["sac_update_gflop"] = sac_update_gflop(tr)
         sample = tr.replay.sample()
         nxt = sample.get("next")
         out["reward_recompute_ms"] = per_call_ms(lambda: tr.learned.reward(nxt), n=200)
@@ -156,6 +160,72 @@ def bench_components(algo: str, sizes: list[int], batch_reps: int = 50) -> dict:
             tr.close()
         except Exception as exc:  # reported, not hidden: the eager numbers stand
             out["compile_error"] = f"{type(exc).__name__}: {exc}"[:500]
+    return out
+
+
+def sac_update_gflop(trainer) -> float:
+    """Matrix-product GFLOPs of one SAC update (forward and backward of ``SACLoss`` on one replay
+    batch), as counted by the PyTorch profiler (``mm``/``addmm``/``bmm`` in both passes)."""
+    from torch.profiler import ProfilerActivity, profile
+
+    sample = trainer.replay.sample()
+    with profile(activities=[ProfilerActivity.CPU], with_flops=True) as prof:
+        out = trainer.loss(sample)
+        (out["loss_actor"] + out["loss_qvalue"] + out["loss_alpha"]).backward()
+    for p in trainer.loss.parameters():
+        p.grad = None
+    return sum(e.flops for e in prof.key_averages()) / 1e9
+
+
+def gemm_gflops(batch: int, width: int, threads: int, reps: int = 400) -> float:
+    """Measured fp32 GEMM rate (GFLOP/s) of ``(batch, width) @ (width, width)``, the shape of the
+    update's hidden layers, with ``threads`` torch threads: the best this machine does at that shape."""
+    old = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        x, w = torch.randn(batch, width), torch.randn(width, width)
+        out = torch.empty(batch, width)
+        for _ in range(20):
+            torch.mm(x, w, out=out)
+        best = float("inf")
+        for _ in range(3):
+            t = time.perf_counter()
+            for _ in range(reps):
+                torch.mm(x, w, out=out)
+            best = min(best, (time.perf_counter() - t) / reps)
+    finally:
+        torch.set_num_threads(old)
+    return 2 * batch * width * width / best / 1e9
+
+
+def roofline(res: dict) -> list[dict]:
+    """Upper bound on phase-1 env steps/s on this machine, for any implementation, per algo config.
+
+    Per env step the algorithm must do ``utd`` SAC updates (``gflop`` each, in matrix products
+    alone) and one simulator step (``1 / raw`` s of one core). With ``C`` cores running GEMMs at the
+    measured one-core rate ``g`` (perfect scaling, no other work, the simulator perfectly overlapped),
+    env steps/s <= C / (utd * gflop / g + 1 / raw). The ratio of that bound to the plain loop's
+    measured rate is the largest speed-up over it that this machine allows.
+    """
+    cores = os.cpu_count() or 1
+    raw = res["raw_sim_steps_per_s"]
+    plain = {q["batch_size"]: q["env_steps_per_s"] for q in res.get("plain", [])}
+    out = []
+    for c in res.get("components", []):
+        bs, width = c["batch_size"], c.get("width", 256)
+        utd = next((r["utd"] for r in res["learn"] if r["algo"] == c["algo"]), 0.5)
+        g1 = gemm_gflops(bs, width, 1)
+        gall = gemm_gflops(bs, width, cores)
+        core_s = utd * c["sac_update_gflop"] / g1 + 1.0 / raw
+        bound = cores / core_s
+        row = {"algo": c["algo"], "batch_size": bs, "utd": utd, "gflop_per_update": c["sac_update_gflop"],
+               "gemm_gflops_1_thread": g1, f"gemm_gflops_{cores}_threads": gall, "cores": cores,
+               "update_ms_lower_bound_all_cores": c["sac_update_gflop"] / gall * 1e3,
+               "update_ms_measured": c["sac_update_ms"], "env_steps_per_s_bound": bound}
+        if bs in plain:
+            row["plain_env_steps_per_s"] = plain[bs]
+            row["bound_over_plain"] = bound / plain[bs]
+        out.append(row)
     return out
 
 
@@ -322,6 +392,8 @@ def main(argv: list[str] | None = None) -> int:
         for algo in a.algos:
             print(f"component timings, {algo} ...", flush=True)
             res["components"].append(bench_components(algo, a.stage_sizes))
+        print("roofline (GEMM rate at the update's shapes) ...", flush=True)
+        res["roofline"] = roofline(res)
     if a.checkpoint:
         print(f"checkpoint of a {a.checkpoint}-transition run ...", flush=True)
         res["checkpoint"] = c = bench_checkpoint(a.checkpoint)
@@ -362,6 +434,17 @@ def render_markdown(res: dict) -> str:
                   f"- discriminator update (one batch per stage): {c['disc_update_ms']:.2f} ms", "",
                   "| stage-buffer transitions | draw one discriminator batch (ms) | file a 50-step episode + draw (ms) |", "|---|---|---|"]
         lines += [f"| {s['transitions']:,} | {s['sample_ms']:.3f} | {s['file_episode_and_sample_ms']:.3f} |" for s in c["stage_sample"]]
+    if res.get("roofline"):
+        lines += ["", "Roofline: what this machine allows any implementation of the same algorithm "
+                  "(matrix products only, at the measured GEMM rate, perfect scaling, simulator fully overlapped):", "",
+                  "| config | GFLOP per SAC update | GEMM GFLOP/s, 1 thread / all | update ms: bound (all cores) / measured | "
+                  "env steps/s bound | plain loop | bound / plain |", "|---|---|---|---|---|---|---|"]
+        for r in res["roofline"]:
+            gall = r[f"gemm_gflops_{r['cores']}_threads"]
+            lines.append(f"| {r['algo']} (batch {r['batch_size']}, UTD {r['utd']}) | {r['gflop_per_update']:.2f} | "
+                         f"{r['gemm_gflops_1_thread']:.0f} / {gall:.0f} | {r['update_ms_lower_bound_all_cores']:.1f} / "
+                         f"{r['update_ms_measured']:.1f} | {r['env_steps_per_s_bound']:.1f} | "
+                         f"{r.get('plain_env_steps_per_s', float('nan')):.1f} | {r.get('bound_over_plain', float('nan')):.2f}x |")
     if "checkpoint" in res:
         c = res["checkpoint"]
         lines += ["", f"Training-state checkpoint of a run holding {c['transitions']:,} transitions (replay buffer and stage buffers "

@@ -10,7 +10,8 @@ action, and the reward of a transition is the rescaled Eq. 4 with the stage of i
 Phase 2 (``phase=reuse``, test map, moved gates) trains a fresh DQN agent with the frozen reward
 (``reward.name=drs reward.checkpoint=.../reward.pt``). The baselines in the same slot are
 ``sparse`` (1 on success, the paper's baseline) and ``semi_sparse`` (``k - 1``: -1 a step, 0 on
-success, which is the constant part of the DrS reward without the learned term).
+success, which is the constant part of the DrS reward without the learned term) and ``dense``
+(human-engineered: ``success - d(s') / d_max`` with ``d`` the map's shortest-path distance to the goal).
 ``phase=report`` gathers the runs under ``report.root`` into a curve PNG, a CSV and a Markdown table.
 
 Choices the paper leaves open, or where this script departs from it (all in ``conf/maze.yaml``):
@@ -75,7 +76,7 @@ from drs_torchrl.envs.maze import (
 from drs_torchrl.objectives import DiscriminatorLoss
 from drs_torchrl.transforms import DrSReward, StageIndicator
 
-REWARDS = ("drs", "sparse", "semi_sparse")
+REWARDS = ("drs", "sparse", "semi_sparse", "dense")
 FAMILY = "three_room_maze"
 RB_KEYS = ["observation", "action", ("next", "observation"), ("next", "reward"), ("next", "done"),
            ("next", "terminated"), ("next", "truncated"), ("next", "stage")]
@@ -237,11 +238,12 @@ def plot_reward_map(reward: DrSReward, path: str | os.PathLike, goal: tuple[int,
 
 # ----------------------------------------------------------------------------- building blocks
 def make_env(map_name: str, num_envs: int, max_steps: int, seed: int, reward_name: str, coords: str = "onehot",
-             drs: DrSReward | None = None) -> TransformedEnv:
-    """The maze with its stage label; ``semi_sparse`` writes ``k - 1`` as the env reward, and a
-    given DrS reward writes ``R(s, a)`` at each step."""
+             drs: DrSReward | None = None, dense_coef: float = 1.0) -> TransformedEnv:
+    """The maze with its stage label; ``semi_sparse`` writes ``k - 1`` as the env reward, ``dense``
+    the env's distance-shaped reward (``dense_coef``), and a given DrS reward writes ``R(s, a)``."""
     env = TransformedEnv(
-        ThreeRoomMaze(map_name, num_envs=num_envs, max_steps=max_steps, seed=seed, coords=coords),
+        ThreeRoomMaze(map_name, num_envs=num_envs, max_steps=max_steps, seed=seed, coords=coords,
+                      dense_coef=dense_coef if reward_name == "dense" else 0.0),
         StageIndicator(["success"], indicators_key=None, semi_sparse_reward=reward_name == "semi_sparse", semi_sparse_offset=-1.0),
     )
     if drs is not None:
@@ -356,7 +358,7 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
     # (Algorithm 1). n-step TD: rewards are summed when the transitions are stored, so the env
     # writes R(s, a) with the discriminator of the moment (see the module docstring).
     env_drs = drs if (drs is not None and n_steps > 1) else None
-    env = make_env(map_name, cfg.num_envs, cfg.max_steps, cfg.seed, rname, cfg.coords, env_drs)
+    env = make_env(map_name, cfg.num_envs, cfg.max_steps, cfg.seed, rname, cfg.coords, env_drs, float(cfg.reward.dense_coef))
     eval_env = make_env(map_name, cfg.eval.episodes, cfg.max_steps, cfg.seed + 10_000, rname, cfg.coords)
     actor = make_qnet(cfg, env.action_spec)
     explore = EGreedyModule(env.action_spec, eps_init=d.eps_init, eps_end=d.eps_end,
