@@ -16,6 +16,8 @@ from torchrl.envs.utils import check_env_specs
 from drs_torchrl.data import StageBuffers
 from drs_torchrl.envs.maze import (
     BOTTOM_ROOM,
+    convert_observation,
+    decode_cells,
     GATES,
     MOVES,
     OBS_DIMS,
@@ -191,6 +193,9 @@ def test_config_errors_name_the_fix():
             validate(compose("maze", overrides=["phase=learn", "reward.name=sparse"]))
         with pytest.raises(MazeConfigError, match="multiple of num_envs"):
             validate(compose("maze", overrides=["num_envs=7"]))
+        with pytest.raises(MazeConfigError, match="use reward.coords=relative or null"):
+            validate(compose("maze", overrides=["coords=relative", "reward.coords=onehot"]))
+        validate(compose("maze", overrides=["coords=onehot", "reward.coords=relative"]))  # re-encodable: fine
 
 
 TINY = ["num_envs=8", "max_steps=40", "total_frames=1024", "dqn.frames_per_batch=128", "dqn.learning_starts=256",
@@ -283,3 +288,28 @@ def test_dense_baseline_reward_is_a_cost_shrinking_along_the_shortest_path():
     sparse.reset()
     out = sparse.step(TensorDict({"action": onehot([STAY, STAY])}, batch_size=[2]))["next"]
     assert (out["reward"] == 0).all()
+
+
+def test_relative_reward_view_is_decoded_from_the_agents_observation():
+    grid = make_grid("test")
+    cells = torch.tensor([[13, 4], [2, 8], [7, 15], [14, 1]])
+    goals = torch.tensor([[2, 8], [3, 9], [1, 1], [4, 15]])
+    for src in ("onehot", "scalar"):
+        obs = observation(grid, cells, goals, src)
+        pos, goal = decode_cells(obs, src)
+        assert torch.equal(pos, cells) and torch.equal(goal, goals)
+        rel = convert_observation(obs, src, "relative")
+        assert torch.equal(rel, observation(grid, cells, goals, "relative"))
+        # goal offset (dx = columns, dy = rows upwards) / 16, then the same 3x3 patch
+        assert torch.allclose(rel[0, :2], torch.tensor([4 / 16, 11 / 16])) and torch.equal(rel[:, 2:], obs[:, -9:])
+    with pytest.raises(ValueError, match="absolute"):
+        decode_cells(observation(grid, cells, goals, "relative"), "relative")
+    # a reward learned on the relative view reads an agent's one-hot transitions through StateActionReward
+    drs = DrSReward(1, ["observation", "action"], {"observation": OBS_DIMS["relative"], "action": 5})
+    obs = observation(grid, cells, goals, "onehot")
+    act = torch.nn.functional.one_hot(torch.tensor([UP, DOWN, LEFT, STAY]), 5).float()
+    td = TensorDict({"observation": obs, "action": act, "next": {"stage": torch.zeros(4, 1, dtype=torch.long)}}, [4])
+    got = StateActionReward(drs, "onehot")(td)["next", "reward"]
+    want = drs.reward(TensorDict({"observation": observation(grid, cells, goals, "relative"), "action": act,
+                                  "stage": torch.zeros(4, 1, dtype=torch.long)}, [4]))
+    assert torch.allclose(got, want)

@@ -44,7 +44,10 @@ MIDDLE_ROOM = (6, 10)
 BOTTOM_ROOM = (12, 15)
 # gate column of the (upper wall, lower wall); the test map moves both gates
 GATES = {"train": (3, 13), "test": (13, 3)}
-OBS_DIMS = {"onehot": 4 * SIZE + 9, "scalar": 4 + 9}
+# coordinate encodings: one-hot (17 entries per coordinate), scalar (coordinate / 16), and relative:
+# the goal's offset from the agent (dx, dy) / 16 only, with no absolute position (an egocentric view
+# a reward can read without learning where the train map's gates are)
+OBS_DIMS = {"onehot": 4 * SIZE + 9, "scalar": 4 + 9, "relative": 2 + 9}
 _PATCH = torch.tensor([(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)])
 
 
@@ -75,16 +78,42 @@ def free_cells(grid: torch.Tensor) -> torch.Tensor:
 def observation(grid: torch.Tensor, pos: torch.Tensor, goal: torch.Tensor, coords: str = "onehot") -> torch.Tensor:
     """Observation vectors ``(*b, OBS_DIMS[coords])`` for agent cells ``pos`` and goal cells ``goal``
     (``(*b, 2)`` row, col)."""
-    xy = torch.stack([pos[..., 1], SIZE - 1 - pos[..., 0], goal[..., 1], SIZE - 1 - goal[..., 0]], -1)  # (*b, 4)
-    if coords == "onehot":
-        xy = torch.nn.functional.one_hot(xy, SIZE).flatten(-2).float()
-    elif coords == "scalar":
-        xy = xy.float() / float(SIZE - 1)
-    else:
-        raise ValueError(f"coords must be 'onehot' or 'scalar', got {coords!r}")
     cells = pos.unsqueeze(-2) + _PATCH  # (*b, 9, 2)
     patch = grid[cells[..., 0].clamp(0, SIZE - 1), cells[..., 1].clamp(0, SIZE - 1)].float()
-    return torch.cat([xy, patch], -1)
+    return torch.cat([encode_coords(pos, goal, coords), patch], -1)
+
+
+def encode_coords(pos: torch.Tensor, goal: torch.Tensor, coords: str) -> torch.Tensor:
+    """The coordinate part of an observation: x = column, y = 16 - row, for agent then goal."""
+    xy = torch.stack([pos[..., 1], SIZE - 1 - pos[..., 0], goal[..., 1], SIZE - 1 - goal[..., 0]], -1)  # (*b, 4)
+    if coords == "onehot":
+        return torch.nn.functional.one_hot(xy, SIZE).flatten(-2).float()
+    if coords == "scalar":
+        return xy.float() / float(SIZE - 1)
+    if coords == "relative":
+        return (xy[..., 2:] - xy[..., :2]).float() / float(SIZE - 1)
+    raise ValueError(f"coords must be one of {sorted(OBS_DIMS)}, got {coords!r}")
+
+
+def decode_cells(obs: torch.Tensor, coords: str) -> tuple[torch.Tensor, torch.Tensor]:
+    """Agent and goal cells ``(*b, 2)`` (row, col) from observations with absolute coordinates."""
+    if coords == "onehot":
+        xy = obs[..., : 4 * SIZE].unflatten(-1, (4, SIZE)).argmax(-1)
+    elif coords == "scalar":
+        xy = (obs[..., :4] * (SIZE - 1)).round().long()
+    else:
+        raise ValueError(f"cells can only be decoded from absolute coordinates (onehot, scalar), not {coords!r}")
+    pos = torch.stack([SIZE - 1 - xy[..., 1], xy[..., 0]], -1)
+    goal = torch.stack([SIZE - 1 - xy[..., 3], xy[..., 2]], -1)
+    return pos, goal
+
+
+def convert_observation(obs: torch.Tensor, src: str, dst: str) -> torch.Tensor:
+    """Re-encode observations from coordinate encoding ``src`` to ``dst`` (the 3x3 patch is kept)."""
+    if src == dst:
+        return obs
+    pos, goal = decode_cells(obs, src)
+    return torch.cat([encode_coords(pos, goal, dst), obs[..., -9:]], -1)
 
 
 class ThreeRoomMaze(EnvBase):
@@ -134,7 +163,7 @@ class ThreeRoomMaze(EnvBase):
             self._dist_max = float(self._dist.max())
         self.t = torch.zeros(n, dtype=torch.long)
         self.observation_spec = Composite(
-            observation=Bounded(0.0, 1.0, shape=(n, self.obs_dim), dtype=torch.float32),
+            observation=Bounded(-1.0 if coords == "relative" else 0.0, 1.0, shape=(n, self.obs_dim), dtype=torch.float32),
             success=Binary(n=1, shape=(n, 1), dtype=torch.bool),
             shape=(n,),
         )

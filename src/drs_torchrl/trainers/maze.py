@@ -64,6 +64,7 @@ from torchrl.objectives import DQNLoss, ValueEstimators
 from drs_torchrl.data import StageBuffers, TrajectoryAssembler
 from drs_torchrl.envs.maze import (
     ACTIONS,
+    convert_observation,
     GATES,
     MOVES,
     OBS_DIMS,
@@ -96,14 +97,20 @@ class StateActionReward(Transform):
     (``forward``) it recomputes rewards from the current discriminator each time the agent samples
     (Algorithm 1, line 18). Inside a :class:`~torchrl.envs.TransformedEnv` (``_step``, placed after
     the :class:`StageIndicator`) it writes the reward of each step as it is taken.
+    ``obs_coords``: the coordinate encoding of the env's observations; when the reward was learned on
+    another one (e.g. ``relative``), observations are re-encoded before the reward reads them.
     """
 
-    def __init__(self, reward: DrSReward):
+    def __init__(self, reward: DrSReward, obs_coords: str | None = None):
         super().__init__()  # it only rewrites the reward entry, whose spec the env already has
         self.drs = reward
+        self.obs_coords = obs_coords
+        self.reward_coords = reward_coords(reward)
 
     def _reward(self, root: TensorDictBase, nxt: TensorDictBase) -> torch.Tensor:
         sa = TensorDict({k: root.get(k) for k in self.drs.reward_in_keys}, batch_size=root.batch_size)
+        if self.obs_coords is not None and self.obs_coords != self.reward_coords:
+            sa.set("observation", convert_observation(sa.get("observation"), self.obs_coords, self.reward_coords))
         sa.set(self.drs.stage_key, nxt.get(self.drs.stage_key))
         return self.drs.reward(sa)
 
@@ -116,11 +123,16 @@ class StateActionReward(Transform):
         return next_tensordict
 
 
-def sa_trajectory(episode: TensorDictBase, stage_key: str = "stage") -> TensorDict:
+def sa_trajectory(episode: TensorDictBase, stage_key: str = "stage", obs_coords: str | None = None,
+                  reward_coords: str | None = None) -> TensorDict:
     """An episode as :meth:`StageBuffers.add_trajectory` reads it: per step, the pair ``(s, a)``
-    and the stage of ``s'``, under ``"next"``."""
+    and the stage of ``s'``, under ``"next"``; observations re-encoded from ``obs_coords`` to
+    ``reward_coords`` when both are given."""
+    obs = episode.get("observation")
+    if obs_coords is not None and reward_coords is not None:
+        obs = convert_observation(obs, obs_coords, reward_coords)
     inner = TensorDict(
-        {"observation": episode.get("observation"), "action": episode.get("action").to(torch.float32),
+        {"observation": obs, "action": episode.get("action").to(torch.float32),
          stage_key: episode.get(("next", stage_key))},
         batch_size=episode.batch_size,
     )
@@ -247,7 +259,7 @@ def make_env(map_name: str, num_envs: int, max_steps: int, seed: int, reward_nam
         StageIndicator(["success"], indicators_key=None, semi_sparse_reward=reward_name == "semi_sparse", semi_sparse_offset=-1.0),
     )
     if drs is not None:
-        env.append_transform(StateActionReward(drs))
+        env.append_transform(StateActionReward(drs, coords))
     return env
 
 
@@ -293,6 +305,10 @@ def demo_episodes(map_name: str, n: int, seed: int, coords: str = "onehot") -> l
     return out
 
 
+def _convertible(src: str, dst: str) -> bool:
+    return src == dst or src in ("onehot", "scalar")
+
+
 def validate(cfg: DictConfig) -> None:
     checks = [
         (cfg.phase in ("learn", "reuse", "report"), f"phase must be learn, reuse or report, got {cfg.phase!r}"),
@@ -309,6 +325,10 @@ def validate(cfg: DictConfig) -> None:
         (cfg.eval.interval > 0 and cfg.eval.episodes > 0, "eval.interval and eval.episodes must be > 0"),
         (cfg.demos >= 0, "demos must be >= 0"),
         (cfg.coords in OBS_DIMS, f"coords must be one of {sorted(OBS_DIMS)}, got {cfg.coords!r}"),
+        (cfg.reward.get("coords") in (None, *OBS_DIMS), f"reward.coords must be null or one of {sorted(OBS_DIMS)}, got {cfg.reward.get('coords')!r}"),
+        (_convertible(cfg.coords, cfg.reward.get("coords") or cfg.coords),
+         f"a reward on coords={cfg.reward.get('coords')} cannot read the agent's coords={cfg.coords} observations "
+         "(absolute positions cannot be recovered from relative ones): use reward.coords=relative or null"),
     ]
     bad = [msg for ok, msg in checks if not ok]
     if bad:
@@ -333,26 +353,30 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
     n_steps = int(d.n_steps)
 
     # reward: learned in this run, frozen from a checkpoint, or a baseline written by the env
-    drs = buffers = disc_loss = disc_opt = None
+    drs = buffers = disc_loss = disc_opt = rc = None  # rc: the coordinate encoding the learned reward reads
     if rname == "drs":
         r = cfg.reward
         if learn:
-            drs = DrSReward(1, ["observation", "action"], {"observation": OBS_DIMS[cfg.coords], "action": len(ACTIONS)},
+            rc = r.get("coords") or cfg.coords
+            drs = DrSReward(1, ["observation", "action"], {"observation": OBS_DIMS[rc], "action": len(ACTIONS)},
                             formula=r.formula, alpha=r.alpha, offset=r.offset, hidden=list(r.hidden), activation=r.activation,
-                            metadata={"family": FAMILY, "map": map_name, "reward_on": "state_action", "coords": cfg.coords, "seed": int(cfg.seed)})
+                            metadata={"family": FAMILY, "map": map_name, "reward_on": "state_action", "coords": rc, "seed": int(cfg.seed)})
             buffers = StageBuffers(1, ["observation", "action"], capacity=r.stage_buffer_size, batch_size=r.disc.batch_size)
             disc_loss = DiscriminatorLoss(drs.discriminators, ["observation", "action"], early_stop_threshold=r.disc.early_stop_threshold,
                                           window=r.disc.window)
             disc_opt = torch.optim.Adam(drs.discriminators.parameters(), lr=r.disc.lr)
-            for ep in demo_episodes(map_name, int(cfg.demos), int(cfg.seed), cfg.coords) if cfg.demos else []:
+            for ep in demo_episodes(map_name, int(cfg.demos), int(cfg.seed), rc) if cfg.demos else []:
                 buffers.add_trajectory(ep, demo=True)
         else:
             drs = DrSReward.from_checkpoint(r.checkpoint)
             meta = drs.metadata
             if meta.get("family") != FAMILY or drs.num_stages != 1 or drs.reward_in_keys != ["observation", "action"]:
                 raise MazeConfigError(f"{r.checkpoint} is not a maze (s, a) reward (family {meta.get('family')!r}, inputs {drs.reward_in_keys})")
-            if reward_coords(drs) != cfg.coords:
-                raise MazeConfigError(f"{r.checkpoint} was learned with coords={reward_coords(drs)}, this run has coords={cfg.coords}")
+            if not _convertible(cfg.coords, reward_coords(drs)):
+                raise MazeConfigError(f"{r.checkpoint} was learned with coords={reward_coords(drs)}, which this run's "
+                                      f"coords={cfg.coords} observations cannot be re-encoded to; use coords={reward_coords(drs)}")
+            if r.get("reuse_offset") is not None:  # shift the frozen reward (the learned term is unchanged)
+                drs.offset = float(r.reuse_offset)
             drs.requires_grad_(False)
     # 1-step TD: the DrS reward is recomputed from the current discriminator when the agent samples
     # (Algorithm 1). n-step TD: rewards are summed when the transitions are stored, so the env
@@ -369,7 +393,7 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
                           transform=MultiStepTransform(n_steps, float(d.gamma)))
     else:
         rb = ReplayBuffer(storage=LazyTensorStorage(int(d.buffer_size)), batch_size=int(d.batch_size),
-                          transform=StateActionReward(drs) if drs is not None else None)
+                          transform=StateActionReward(drs, cfg.coords) if drs is not None else None)
 
     loss = DQNLoss(actor, action_space=env.action_spec, delay_value=True, double_dqn=bool(d.double_dqn), loss_function=d.loss_function)
     loss.make_value_estimator(ValueEstimators.TD0, gamma=float(d.gamma))
@@ -420,7 +444,7 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
                 stage = int(ep.get(("next", "stage")).max())
                 episodes.append((stage, ep.shape[0]))
                 if buffers is not None:
-                    buffers.add_trajectory(sa_trajectory(ep))
+                    buffers.add_trajectory(sa_trajectory(ep, obs_coords=cfg.coords, reward_coords=rc))
                     disc_loss.record_episodes([stage])
             explore.step(n)
             if frames < int(d.learning_starts):
