@@ -231,9 +231,11 @@ def test_drs_maze_learn_then_reuse_then_report(tmp_path):
             cfg = compose("maze", overrides=["phase=reuse", f"reward.name={name}", *extra, *TINY])
             s = train(cfg, tmp_path / "study" / f"reuse-{name}-s0")
             assert s["map"] == "test" and s["reward"] == name and s["frames"] == 1024
-        with pytest.raises(MazeConfigError, match="coords"):
-            cfg = compose("maze", overrides=["phase=reuse", "coords=scalar", f"reward.checkpoint={learn_dir / 'reward.pt'}", *TINY])
+        # an agent seeing only relative coordinates cannot feed a reward learned on absolute ones
+        with pytest.raises(MazeConfigError, match="coords=onehot"):
+            cfg = compose("maze", overrides=["phase=reuse", "coords=relative", f"reward.checkpoint={learn_dir / 'reward.pt'}", *TINY])
             train(cfg, tmp_path / "bad")
+        assert not (tmp_path / "bad" / "train.csv").exists()
     assert (tmp_path / "study" / "reuse-drs-s0" / "reward_map.png").is_file()
     assert not (tmp_path / "study" / "reuse-sparse-s0" / "reward.pt").exists()
     # the frozen reward is the learned one: same values on every (s, a) of the test map
