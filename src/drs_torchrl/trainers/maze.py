@@ -340,14 +340,12 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
     """Phase 1 or phase 2 (or a baseline) of the maze experiment; writes into ``run_dir``."""
     validate(cfg)
     run_dir = Path(run_dir)
-    run_dir.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(int(cfg.num_threads))
     torch.manual_seed(int(cfg.seed))
     np.random.seed(int(cfg.seed))
     learn = cfg.phase == "learn"
     map_name = cfg.map or ("train" if learn else "test")
     rname = cfg.reward.name
-    OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
 
     d = cfg.dqn
     n_steps = int(d.n_steps)
@@ -378,6 +376,9 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
             if r.get("reuse_offset") is not None:  # shift the frozen reward (the learned term is unchanged)
                 drs.offset = float(r.reuse_offset)
             drs.requires_grad_(False)
+    # the run directory is written only once the reward (and its checkpoint) is known to be usable
+    run_dir.mkdir(parents=True, exist_ok=True)
+    OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
     # 1-step TD: the DrS reward is recomputed from the current discriminator when the agent samples
     # (Algorithm 1). n-step TD: rewards are summed when the transitions are stored, so the env
     # writes R(s, a) with the discriminator of the moment (see the module docstring).
