@@ -124,13 +124,12 @@ class ThreeRoomMaze(EnvBase):
         num_envs: number of grids stepped together (the env's batch size).
         max_steps: episode length limit (truncation).
         seed: seed of the env's own random generator (starts and goals).
-        coords: ``"onehot"`` or ``"scalar"`` encoding of the coordinates (module docstring).
+        coords: ``"onehot"``, ``"scalar"`` or ``"relative"`` encoding of the coordinates (:data:`OBS_DIMS`).
         dense_coef: 0 (default) gives the sparse reward. Above 0, the human-engineered dense baseline:
             ``success - dense_coef * d(s') / d_max`` with ``d`` the shortest-path distance to the goal
             on this map (breadth-first) and ``d_max`` its largest value, i.e. a per-step cost that
-            shrinks towards the goal. (A potential difference ``d(s) - d(s')`` would not do: it
-            telescopes, so it leaves the sparse reward's tiny action gaps, and DQN's greedy policy
-            stalled beside the goal in a 200k-step run.)
+            shrinks towards the goal. (A potential difference ``d(s) - d(s')`` telescopes along any
+            path, so it would leave the sparse reward's tiny action gaps.)
     """
 
     _has_dynamic_specs = False

@@ -1,0 +1,19 @@
+"""Mean / min / max of the training reach rate of stage 1 (rolling over the last 50 episodes, one
+row of train.csv every ~2k env steps) in env-step windows: the figures quoted for the long runs.
+
+    .venv/bin/python results/families/reach_windows.py results/families/pick_and_place_long results/families/stack_cube_long
+"""
+import csv
+import statistics
+import sys
+
+WINDOWS = [(0, 250_000), (250_000, 300_000), (300_000, 360_000), (360_000, 400_000), (400_000, 450_000)]
+
+for run in sys.argv[1:]:
+    rows = list(csv.DictReader(open(f"{run}/train.csv")))
+    xs = [(float(r["frames"]), float(r["reach_stage_1"])) for r in rows if r["reach_stage_1"] not in ("", "nan")]
+    print(run)
+    for lo, hi in WINDOWS:
+        v = [x for f, x in xs if lo < f <= hi]
+        if v:
+            print(f"  {lo // 1000:>3}-{hi // 1000}k: mean {statistics.mean(v):.2f}, min {min(v):.2f}, max {max(v):.2f} ({len(v)} rows)")
