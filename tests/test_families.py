@@ -138,6 +138,25 @@ def test_one_named_variant_stays_fixed():
         env.close()
 
 
+def test_turn_valve_episodes_end_at_their_own_levels_time_limit():
+    """ManiSkill's RotateValve levels have their own time limits (80 / 150 / 300); a pooled env keeps them."""
+    fam = get_family("turn_valve")
+    def hold_still(tensordict):  # no motion: the valve cannot reach its goal, so only the time limit ends an episode
+        return tensordict.set("action", torch.zeros(9))
+
+    for variant, overrides, steps in (("level0", None, 80), ("level4", None, 300), ("level4", {"max_steps": 7}, 7)):
+        env = make_family_env(fam, variant, variant_overrides=overrides, seed=0)
+        try:
+            td = env.rollout(400, policy=hold_still, break_when_any_done=True)
+            assert td.shape[0] == steps, (variant, overrides)
+            assert bool(td["next", "truncated"][-1]) and not bool(td["next", "truncated"][:-1].any())
+            assert not bool(td["next", "terminated"].any())
+        finally:
+            env.close()
+    with pytest.raises(ValueError, match="max_steps"):
+        make_family_env(fam, "level1", variant_overrides={"max_steps": 0}, seed=0)
+
+
 def test_cross_robot_reward_reads_robot_agnostic_entries_and_fits_every_robot():
     from drs_torchrl.rewards import new_drs_reward
     from drs_torchrl.transforms import DrSReward
@@ -167,11 +186,13 @@ def test_cross_robot_reward_reads_robot_agnostic_entries_and_fits_every_robot():
 
 
 def test_every_family_has_a_config_and_asset_families_are_registered():
-    for name in list_families():
-        if name == "half_cheetah":
-            continue
-        cfg = OmegaConf.load(CONF / "env" / f"{name}.yaml")
-        assert cfg.family == name
+    with initialize_config_dir(config_dir=str(CONF), version_base=None):
+        for name in list_families():
+            assert compose("learn", overrides=[f"env={name}"]).env.family == name
+        # a family may set its own SAC defaults (HalfCheetah's 1000-step episodes: gamma 0.99); the command line wins
+        assert compose("learn", overrides=["env=pick_cube"]).algo.gamma == pytest.approx(0.8)
+        assert compose("reuse", overrides=["env=half_cheetah"]).algo.gamma == pytest.approx(0.99)
+        assert compose("learn", overrides=["env=half_cheetah", "algo.gamma=0.9"]).algo.gamma == pytest.approx(0.9)
     assert set(RUNNABLE) | set(ASSET_BACKED) <= set(list_families())
     faucet, cabinet = get_family("turn_faucet"), get_family("open_cabinet_door")
     assert (len(faucet.train_variants), len(faucet.test_variants)) == (10, 50)  # the paper's split

@@ -44,7 +44,9 @@ class ManiSkillEnv(EnvBase):
         control_mode: ManiSkill controller (the paper uses end-effector delta position).
         reward_mode: ManiSkill reward written to ``"reward"`` (``"sparse"``, ``"normalized_dense"``...).
             Learned rewards overwrite it through a transform.
-        max_episode_steps: episode length (time-limit truncation); ``None`` keeps ManiSkill's.
+        max_episode_steps: episode length (time-limit truncation); ``None`` keeps ManiSkill's. A pooled
+            env whose variants have their own limits (``variant_episode_steps``) truncates each
+            episode at the smaller of the two.
         env_kwargs: extra keyword arguments for ``gym.make`` (task variant parameters).
         observation_key: where the flat state observation goes.
         task_observation_key: if set, also write the task env's ``task_observation()`` (a flat
@@ -109,6 +111,7 @@ class ManiSkillEnv(EnvBase):
         self.observation_key = observation_key
         self.task_observation_key = task_observation_key
         self.variant_names: list[str] | None = getattr(self._gym_env.unwrapped, "variant_names", None)
+        self._variant_steps = getattr(self._gym_env.unwrapped, "variant_episode_steps", None)
         self._sim_device = torch.device("cuda" if gpu else "cpu")
         batch = torch.Size([num_envs]) if gpu else torch.Size([])
         super().__init__(device=device if device is not None else self._sim_device, batch_size=batch)
@@ -207,6 +210,11 @@ class ManiSkillEnv(EnvBase):
         b = self.batch_size
         terminated = torch.as_tensor(terminated).to(torch.bool).reshape(*b, 1).to(self.device)
         truncated = torch.as_tensor(truncated).to(torch.bool).reshape(*b, 1).to(self.device)
+        if self._variant_steps is not None:  # variants with their own time limits (pooled envs)
+            limit = self._variant_steps()
+            if limit is not None:
+                over = self._gym_env.unwrapped.elapsed_steps.to(limit.device) >= limit
+                truncated = truncated | over.reshape(*b, 1).to(self.device)
         out = {
             self.observation_key: self._shape(obs, 1).to(torch.float32),
             "reward": torch.as_tensor(reward).to(torch.float32).reshape(*b, 1).to(self.device),

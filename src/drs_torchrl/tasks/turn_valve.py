@@ -10,6 +10,8 @@ Stage indicators, after Appendix A's Turn Faucet ("the handle is moving", "the h
 target angle"): ``is_valve_turning`` (the valve turned by more than ``turning_thresh`` = 0.01 rad,
 i.e. 0.2 rad/s at the 20 Hz control rate, in the commanded direction during the last control step;
 ``+env.variant_overrides.turning_thresh=...``) and ``success`` (ManiSkill's goal rotation reached).
+Episode lengths are ManiSkill's per level (80, 150, 150, 150, 300 steps: ``LEVEL_STEPS`` in
+``envs/variants/valve.py``); ``+env.variant_overrides.max_steps=150`` gives every level one limit.
 The episode's stage is the highest it reached (the stage buffers file it there), so a valve that
 stops turning does not undo the episode's progress.
 """
@@ -25,7 +27,7 @@ register_family(
         train_variants=("level0", "level2", "level4"),
         test_variants=("level1", "level3"),
         control_mode="pd_joint_delta_pos",
-        max_episode_steps=150,
+        max_episode_steps=300,  # the longest level's; each episode ends at its own level's (80-300)
         pooled=True,
     )
 )

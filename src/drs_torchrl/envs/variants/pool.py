@@ -108,6 +108,17 @@ class VariantPoolMixin:
         idx = self.variant_index if env_idx is None else self.variant_index[env_idx]
         return table[idx]
 
+    def variant_episode_steps(self) -> torch.Tensor | None:
+        """Episode length of each env's current variant (the ``max_steps`` variant parameter), or ``None``.
+
+        Families whose variants have different time limits (ManiSkill's RotateValve levels: 80 to 300
+        steps) list ``max_steps`` in ``VARIANT_DEFAULTS``; :class:`~drs_torchrl.envs.maniskill.ManiSkillEnv`
+        then truncates each episode at its variant's limit (the env id's own limit is the longest).
+        """
+        if "max_steps" not in self.VARIANT_DEFAULTS or self.variant_index is None:
+            return None
+        return self._param("max_steps")
+
     @property
     def current_variant(self) -> str:
         """Name of the variant of the first parallel env (on the CPU backend: of this episode)."""

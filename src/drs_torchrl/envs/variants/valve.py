@@ -29,6 +29,7 @@ from mani_skill.utils.structs.pose import Pose
 from drs_torchrl.envs.variants.pool import PARK_SPACING, PARK_Y, VariantPoolMixin
 
 GOALS = {0: np.pi / 2, 1: np.pi, 2: np.pi, 3: np.pi, 4: 2 * np.pi}
+LEVEL_STEPS = {0: 80, 1: 150, 2: 150, 3: 150, 4: 300}  # ManiSkill's RotateValveLevel{k}-v1 time limits
 
 
 def valve_geometries(level: int, n: int, rng: np.random.RandomState) -> list[tuple[tuple[float, ...], float, float]]:
@@ -46,13 +47,21 @@ def valve_geometries(level: int, n: int, rng: np.random.RandomState) -> list[tup
 
 
 class RotateValveVariantsEnv(VariantPoolMixin, RotateValveEnv):
-    """RotateValve with ``level`` (0-4) and ``turning_thresh`` (radians per control step) per variant."""
+    """RotateValve with ``level`` (0-4), ``turning_thresh`` (radians per control step) and ``max_steps`` per variant.
 
-    VARIANT_DEFAULTS = {"level": 0, "turning_thresh": 0.01}
+    ``max_steps`` (``None``: the level's ManiSkill limit, :data:`LEVEL_STEPS`) is the episode length of
+    the variant; the env id's limit is the longest (300), and ``ManiSkillEnv`` truncates each episode
+    at its own variant's (:meth:`VariantPoolMixin.variant_episode_steps`).
+    """
+
+    VARIANT_DEFAULTS = {"level": 0, "turning_thresh": 0.01, "max_steps": None}
 
     def __init__(self, *args, variants=None, variant_names=None, valves_per_level: int = 3, geometry_seed: int = 0,
                  **kwargs):
         kwargs = self._pool_init(variants, variant_names, kwargs)
+        for v in self.variant_pool:
+            if v["max_steps"] is None:
+                v["max_steps"] = LEVEL_STEPS[int(v["level"])]
         self.valves_per_level, self.geometry_seed = int(valves_per_level), int(geometry_seed)
         first = int(self.variant_pool[0]["level"])
         super().__init__(*args, difficulty_level=first, **kwargs)
@@ -60,6 +69,8 @@ class RotateValveVariantsEnv(VariantPoolMixin, RotateValveEnv):
     def _check_variant(self, variant):
         if int(variant["level"]) not in GOALS:
             raise ValueError(f"level must be 0-4, got {variant['level']}")
+        if variant["max_steps"] is not None and int(variant["max_steps"]) < 1:
+            raise ValueError(f"max_steps must be >= 1 (or null for the level's own limit), got {variant['max_steps']}")
 
     # -------------------------------------------------------------------- scene
     def _load_articulations(self):
@@ -156,4 +167,4 @@ class RotateValveVariantsEnv(VariantPoolMixin, RotateValveEnv):
 
 
 if "RotateValveVariants-v1" not in REGISTERED_ENVS:
-    register_env("RotateValveVariants-v1", max_episode_steps=150)(RotateValveVariantsEnv)
+    register_env("RotateValveVariants-v1", max_episode_steps=max(LEVEL_STEPS.values()))(RotateValveVariantsEnv)
