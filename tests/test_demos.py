@@ -168,3 +168,83 @@ def test_maniskill_h5_errors_name_the_problem(maniskill_h5, pick_cube, tmp_path,
 
     with pytest.raises(DemoError, match="not a ManiSkill family"):
         load_maniskill_h5(maniskill_h5, get_family("half_cheetah"))
+
+
+# ------------------------------------------------------------------ a trained policy as demonstrator
+def _policy_run(tmp_path, family_name: str, env_cfg: dict):
+    """A run directory as drs-learn leaves it: checkpoints/policy.pt (an untrained SAC actor) + config.yaml."""
+    from omegaconf import OmegaConf
+
+    from drs_torchrl.envs.factory import make_family_env
+    from drs_torchrl.models import POLICY_FORMAT, make_sac_modules
+    from drs_torchrl.tasks import get_family
+
+    torch.manual_seed(0)
+    env = make_family_env(get_family(family_name), "train", seed=0, max_episode_steps=env_cfg.get("max_episode_steps"))
+    actor, _ = make_sac_modules(env.observation_spec, env.action_spec, ["observation", "stage_indicators"], [32, 32])
+    env.close()
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    torch.save({"format": POLICY_FORMAT, "version": 1, "frames": 0, "family": family_name,
+                "policy_in_keys": ["observation", "stage_indicators"], "hidden": [32, 32], "actor": actor.state_dict()},
+               run / "checkpoints" / "policy.pt")
+    OmegaConf.save(OmegaConf.create({"env": env_cfg}), run / "config.yaml")
+    return run
+
+
+def test_a_policy_records_demos_of_its_successful_episodes(tmp_path):
+    """The paper's demonstrations come from trained RL agents (Appendix A); any family, solver or not."""
+    from drs_torchrl.demos import record_policy_demos
+    from drs_torchrl.tasks import get_family
+
+    # HalfCheetah (no solver): success = the running return passed the threshold; 0.0 makes some episodes succeed
+    run = _policy_run(tmp_path, "half_cheetah", {"family": "half_cheetah", "max_episode_steps": 40,
+                                                 "variant_overrides": {"success_return": 0.0}})
+    states, meta = record_policy_demos(run, "train", 3, seed=1, deterministic=False, max_episodes=200, progress=False)
+    assert meta["family"] == "half_cheetah" and meta["episodes"] == 3 and meta["solver"].startswith("policy:")
+    assert 3 <= meta["episodes_tried"] <= 200 and meta["success_rate"] == pytest.approx(3 / meta["episodes_tried"])
+    path = save_demos(states, meta, tmp_path / "hc.demos")
+    episodes, meta = load_demos(path)
+    for ep, n in zip(episodes, meta["lengths"]):
+        assert ep.shape[0] == n <= 40
+        assert bool(ep["success"][-1]) and not bool(ep["success"][:-1].any())  # cut at the first success
+        assert int(ep["stage"][-1]) == 1
+    check_demos(meta, get_family("half_cheetah"), {"observation": 17, "stage_indicators": 1})
+
+
+def test_policy_demo_errors_name_the_problem(tmp_path, capsys):
+    from drs_torchrl.demos import main, record_policy_demos
+    from drs_torchrl.models import PolicyCheckpointError
+
+    assert main(["--from-policy", str(tmp_path / "nowhere")]) == 2
+    assert "no policy checkpoint there" in capsys.readouterr().err
+    bad = tmp_path / "bad" / "checkpoints"
+    bad.mkdir(parents=True)
+    torch.save({"format": "drs-torchrl/reward", "weights": {}}, bad / "policy.pt")
+    assert main(["--from-policy", str(bad.parent)]) == 2
+    assert "not a drs-torchrl policy checkpoint" in capsys.readouterr().err
+    # a policy that never succeeds: stopped after --max-episodes, with a hint
+    run = _policy_run(tmp_path, "half_cheetah", {"family": "half_cheetah", "max_episode_steps": 5,
+                                                 "variant_overrides": {"success_return": 1.0e6}})
+    with pytest.raises(RuntimeError, match=r"succeeded in only 0 of 2 episodes.*--stochastic"):
+        record_policy_demos(run, num=1, max_episodes=2, progress=False)
+    with pytest.raises(SystemExit) as e:
+        main(["--from-policy", str(run), "--override", "nokey"])
+    assert e.value.code == 2 and "KEY=VALUE" in capsys.readouterr().err
+    # a policy of another family, or for other sizes, is refused before any episode runs
+    from drs_torchrl.envs.factory import make_family_env
+    from drs_torchrl.models import load_policy
+    from drs_torchrl.tasks import get_family
+
+    env = make_family_env(get_family("half_cheetah"), "train", seed=0, max_episode_steps=5)
+    try:
+        with pytest.raises(PolicyCheckpointError, match="family 'half_cheetah', not 'pick_cube'"):
+            load_policy(run, env.observation_spec, env.action_spec, family="pick_cube")
+        ck = torch.load(run / "checkpoints" / "policy.pt", weights_only=False)
+        first = next(k for k in ck["actor"] if k.endswith("weight"))
+        ck["actor"][first] = torch.zeros(32, 99)
+        torch.save(ck, run / "checkpoints" / "policy.pt")
+        with pytest.raises(PolicyCheckpointError, match="does not fit this env"):
+            load_policy(run, env.observation_spec, env.action_spec)
+    finally:
+        env.close()

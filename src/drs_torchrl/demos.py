@@ -21,6 +21,11 @@ Episodes are cut at their first successful state (training episodes terminate th
 ManiSkill's own trajectory files (``X.h5`` + ``X.json``, e.g. its downloadable datasets) convert to
 this format with ``drs-demos --from-h5 X.h5 --family ...`` (:func:`load_maniskill_h5`), which replays
 them in the family's env.
+
+The paper's demonstrations come from trained RL agents (Appendix A: "The demonstrations are from a
+trained RL agent"). ``drs-demos --from-policy RUN_DIR`` does that for any family, including those
+without a solver (``turn_valve``, ``half_cheetah``, the asset-backed ones): it rolls out the run's
+SAC policy in the family's env and keeps the episodes that succeed (:func:`record_policy_demos`).
 """
 from __future__ import annotations
 
@@ -125,6 +130,79 @@ def record_demos(family: TaskFamily, variant: str, num: int, *, seed: int = 0, v
         "variant": variant, "variant_kwargs": kwargs, "stage_keys": list(family.stage_keys),
         "shapes": {k: int(data[k].shape[-1]) for k in ("observation", "stage_indicators", family.task_observation_key) if k},
         "episodes": len(episodes), "lengths": lengths, "seeds": seeds, "solver": ref,
+    }
+    return data, meta
+
+
+def record_policy_demos(policy_path: str | Path, variant: str = "train", num: int = 100, *, seed: int = 0,
+                        variant_overrides: dict | None = None, deterministic: bool = True, max_episodes: int | None = None,
+                        progress: bool = True) -> tuple[TensorDict, dict]:
+    """Roll out a trained ``drs-learn``/``drs-reuse`` policy until ``num`` episodes succeed; returns (states, meta).
+
+    The env is the family's (``make_family_env``) with the run's controller, episode length and
+    variant overrides (from the run's ``config.yaml`` when there is one; ``variant_overrides`` are
+    applied on top). ``deterministic=False`` samples actions from the policy, which succeeds more
+    often than its mean action early in training. Stops with ``RuntimeError`` after
+    ``max_episodes`` (default ``20 * num``) episodes.
+    """
+    from omegaconf import OmegaConf
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    from drs_torchrl.envs.factory import make_family_env
+    from drs_torchrl.models import PolicyCheckpointError, load_policy, resolve_policy_path
+
+    file = resolve_policy_path(policy_path)
+    ck = torch.load(file, map_location="cpu", weights_only=False)
+    if not isinstance(ck, dict) or "family" not in ck:
+        raise PolicyCheckpointError(f"{file} is not a drs-torchrl policy checkpoint; pass a run's checkpoints/policy.pt")
+    family = get_family(ck["family"])
+    cfg_file = file.parent.parent / "config.yaml"
+    env_cfg = OmegaConf.to_container(OmegaConf.load(cfg_file).env) if cfg_file.is_file() else {}
+    overrides = {**(env_cfg.get("variant_overrides") or {}), **(variant_overrides or {})}
+    env = make_family_env(family, variant, variant_overrides=overrides or None, seed=seed,
+                          control_mode=env_cfg.get("control_mode"), max_episode_steps=env_cfg.get("max_episode_steps"))
+    try:
+        actor, pmeta = load_policy(file, env.observation_spec, env.action_spec, family=family.name)
+        keys = [k for k in ("observation", *family.all_info_keys, family.task_observation_key)
+                if k and k in env.observation_spec.keys(True)]
+        labeller = StageIndicator(family.stage_keys)
+        limit = int(getattr(env.base_env, "max_episode_steps", 0) or 0) or int(env_cfg.get("max_episode_steps") or 0) \
+            or family.max_episode_steps
+        episodes, lengths, tried_ids = [], [], []
+        max_episodes = int(max_episodes or 20 * num)
+        tried, t0 = 0, time.time()
+        mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
+        with set_exploration_type(mode), torch.no_grad():
+            while len(episodes) < num:
+                if tried >= max_episodes:
+                    raise RuntimeError(f"the policy succeeded in only {len(episodes)} of {tried} episodes on "
+                                       f"{family.name}/{variant}" + ("; try --stochastic" if deterministic else ""))
+                td = env.rollout(limit, actor, break_when_any_done=True)
+                tried += 1
+                nxt = td["next"]
+                states = TensorDict({k: nxt[k].clone() for k in keys}, batch_size=[td.shape[0]])
+                states = _successful_episode(states, labeller, len(episodes))
+                if progress:
+                    print(f"\r  {len(episodes) + (states is not None)}/{num} demos from {tried} episodes "
+                          f"({time.time() - t0:.0f}s)", end="", file=sys.stderr, flush=True)
+                if states is None:
+                    continue
+                episodes.append(states)
+                lengths.append(states.shape[0])
+                tried_ids.append(tried - 1)
+        if progress:
+            print(file=sys.stderr)
+    finally:
+        env.close()
+    args = family.env_args(variant, overrides or None)
+    data = torch.cat(episodes, 0)
+    meta = {
+        "format": DEMO_FORMAT, "version": DEMO_VERSION, "family": family.name, "env_id": args.get("env_id", family.env_id),
+        "variant": variant, "variant_kwargs": args.get("env_kwargs", {}), "stage_keys": list(family.stage_keys),
+        "shapes": {k: int(data[k].shape[-1]) for k in ("observation", "stage_indicators", family.task_observation_key) if k},
+        "episodes": len(episodes), "lengths": lengths, "seeds": [seed], "episode_indices": tried_ids,
+        "solver": f"policy:{file} (frames {pmeta.get('frames')}, {'deterministic' if deterministic else 'stochastic'})",
+        "episodes_tried": tried, "success_rate": len(episodes) / tried,
     }
     return data, meta
 
@@ -486,24 +564,55 @@ def load_maniskill_h5(path: str | Path, family: TaskFamily, variant: str = "trai
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="drs-demos", description="generate demonstrations with ManiSkill's motion planners, "
+                                "record a trained policy's successful episodes (--from-policy), "
                                 "or convert a ManiSkill trajectory file (--from-h5)")
     p.add_argument("--family", default="pick_cube")
     p.add_argument("--variant", default="train", help="variant name, or train/test (the split's first variant)")
     p.add_argument("--num", type=int, default=None, help="default: 100 recorded; all successful ones of --from-h5")
     p.add_argument("--from-h5", type=Path, default=None, metavar="PATH.h5",
                    help="convert ManiSkill's trajectory file PATH.h5 (+ PATH.json) by replaying it in the family's env")
+    p.add_argument("--from-policy", default=None, metavar="RUN_DIR",
+                   help="roll out a drs-learn/drs-reuse run's policy (RUN_DIR or its policy.pt) and keep its successful "
+                        "episodes, as the paper's demonstrations (any family; the family comes from the checkpoint)")
+    p.add_argument("--stochastic", action="store_true", help="--from-policy: sample actions instead of the mean action")
+    p.add_argument("--max-episodes", type=int, default=None, help="--from-policy: give up after this many (default 20 x --num)")
+    p.add_argument("--override", action="append", default=[], metavar="KEY=VALUE",
+                   help="--from-policy: a variant parameter for every episode, e.g. max_steps=150 (repeatable)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=None, help="default: demos/<family>-<variant>.demos")
     a = p.parse_args(argv)
     if a.num is not None and a.num < 1:
         p.error("--num must be >= 1")
+    if a.from_policy is not None and a.from_h5 is not None:
+        p.error("--from-policy and --from-h5 are two different sources; give one")
+    overrides = {}
+    for item in a.override:
+        key, eq, value = item.partition("=")
+        if not eq or not key:
+            p.error(f"--override takes KEY=VALUE, got {item!r}")
+        import yaml
+
+        overrides[key] = yaml.safe_load(value)
+    if overrides and a.from_policy is None:
+        p.error("--override applies to --from-policy")
     try:
-        fam = get_family(a.family)
-        out = a.out or Path("demos") / f"{fam.name}-{a.variant}.demos"
-        if a.from_h5 is not None:
-            states, meta = load_maniskill_h5(a.from_h5, fam, a.variant, num=a.num)
+        if a.from_policy is not None:
+            from drs_torchrl.models import PolicyCheckpointError
+
+            try:
+                states, meta = record_policy_demos(a.from_policy, a.variant, a.num or 100, seed=a.seed,
+                                                   variant_overrides=overrides, deterministic=not a.stochastic,
+                                                   max_episodes=a.max_episodes)
+            except PolicyCheckpointError as exc:
+                raise DemoError(str(exc)) from exc
+            fam = get_family(meta["family"])
         else:
-            states, meta = record_demos(fam, a.variant, a.num or 100, seed=a.seed)
+            fam = get_family(a.family)
+            if a.from_h5 is not None:
+                states, meta = load_maniskill_h5(a.from_h5, fam, a.variant, num=a.num)
+            else:
+                states, meta = record_demos(fam, a.variant, a.num or 100, seed=a.seed)
+        out = a.out or Path("demos") / f"{fam.name}-{a.variant}.demos"
     except (KeyError, DemoError, RuntimeError) as exc:
         print(f"drs-demos: error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
         return 2

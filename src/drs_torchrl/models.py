@@ -2,11 +2,18 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 
 import torch
 from tensordict.nn import NormalParamExtractor, TensorDictModule, TensorDictSequential
 from torch import nn
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
+
+POLICY_FORMAT = "drs-torchrl/policy"  # checkpoints/policy.pt of drs-learn / drs-reuse runs
+
+
+class PolicyCheckpointError(ValueError):
+    """A policy checkpoint that cannot be loaded for this env."""
 
 
 def _in_features(observation_spec, keys: Sequence[str]) -> int:
@@ -63,3 +70,46 @@ def make_sac_modules(
         actor(td)
         qvalue(td)
     return actor, qvalue
+
+
+def resolve_policy_path(path: str | Path) -> Path:
+    """``RUN_DIR``, ``RUN_DIR/checkpoints`` or a ``policy.pt`` file -> the ``policy.pt`` path."""
+    path = Path(path)
+    for cand in (path, path / "policy.pt", path / "checkpoints" / "policy.pt"):
+        if cand.is_file():
+            return cand
+    raise PolicyCheckpointError(f"{path}: no policy checkpoint there (expected a drs-learn/drs-reuse run directory "
+                                "or its checkpoints/policy.pt)")
+
+
+def load_policy(path: str | Path, observation_spec, action_spec, *, family: str | None = None) -> tuple[ProbabilisticActor, dict]:
+    """The SAC actor of a ``drs-learn`` / ``drs-reuse`` policy checkpoint, built for the given specs.
+
+    Returns ``(actor, checkpoint metadata)``. Raises :class:`PolicyCheckpointError` (saying what
+    does not fit) for a file that is not a policy checkpoint, one from another task family, or one
+    whose input/action sizes differ from the env's.
+    """
+    file = resolve_policy_path(path)
+    try:
+        ck = torch.load(file, map_location="cpu", weights_only=False)
+    except Exception as exc:
+        raise PolicyCheckpointError(f"{file}: cannot be read as a torch file ({exc.__class__.__name__}: {exc})") from exc
+    if not isinstance(ck, dict) or ck.get("format") != POLICY_FORMAT:
+        got = ck.get("format") if isinstance(ck, dict) else type(ck).__name__
+        raise PolicyCheckpointError(f"{file} is not a drs-torchrl policy checkpoint (format {got!r}); "
+                                    "pass a run's checkpoints/policy.pt")
+    if family is not None and ck.get("family") != family:
+        raise PolicyCheckpointError(f"{file} is a policy for family {ck.get('family')!r}, not {family!r}")
+    keys = list(ck["policy_in_keys"])
+    missing = [k for k in keys if k not in observation_spec.keys(True)]
+    if missing:
+        raise PolicyCheckpointError(f"{file}: the policy reads {missing}, which this env does not produce")
+    try:
+        actor, _ = make_sac_modules(observation_spec, action_spec, keys, ck["hidden"])
+        actor.load_state_dict(ck["actor"])
+    except RuntimeError as exc:  # size mismatches
+        sizes = {k: int(observation_spec[k].shape[-1]) for k in keys}
+        raise PolicyCheckpointError(f"{file} does not fit this env (inputs {sizes}, action {int(action_spec.shape[-1])}): "
+                                    f"{str(exc).splitlines()[0]}") from exc
+    meta = {k: v for k, v in ck.items() if k not in ("actor", "qvalue_params")}
+    return actor, meta

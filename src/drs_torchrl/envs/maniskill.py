@@ -125,7 +125,15 @@ class ManiSkillEnv(EnvBase):
 
     @property
     def max_episode_steps(self) -> int:
-        return int(self._gym_env.spec.max_episode_steps) if self._gym_env.spec else -1
+        """The time limit the env truncates at (ManiSkill's ``TimeLimitWrapper``), ``-1`` if none."""
+        env = self._gym_env
+        while env is not None:
+            limit = env.__dict__.get("_max_episode_steps")
+            if limit is not None:
+                return int(limit)
+            env = env.__dict__.get("env")
+        spec = self._gym_env.spec
+        return int(spec.max_episode_steps) if spec is not None and spec.max_episode_steps is not None else -1
 
     def _make_specs(self) -> None:
         obs_space = self._gym_env.unwrapped.single_observation_space

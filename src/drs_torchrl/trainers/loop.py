@@ -34,13 +34,12 @@ from drs_torchrl.data import StageBuffers, TrajectoryAssembler
 from drs_torchrl.data.persistence import SnapshotError, dump_buffer, load_buffer
 from drs_torchrl.demos import check_demos, load_demos
 from drs_torchrl.envs.factory import make_family_env
-from drs_torchrl.models import make_sac_modules
+from drs_torchrl.models import POLICY_FORMAT, make_sac_modules
 from drs_torchrl.objectives import DiscriminatorLoss
 from drs_torchrl.rewards import new_drs_reward, reward_setup
 from drs_torchrl.run_logger import RunLogger
 from drs_torchrl.tasks import get_family
 
-POLICY_FORMAT = "drs-torchrl/policy"
 
 
 class ConfigError(ValueError):
