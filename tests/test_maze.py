@@ -193,7 +193,7 @@ def test_config_errors_name_the_fix():
             validate(compose("maze", overrides=["phase=learn", "reward.name=sparse"]))
         with pytest.raises(MazeConfigError, match="multiple of num_envs"):
             validate(compose("maze", overrides=["num_envs=7"]))
-        with pytest.raises(MazeConfigError, match="use reward.coords=relative or null"):
+        with pytest.raises(MazeConfigError, match="use reward.coords=relative, patch or null"):
             validate(compose("maze", overrides=["coords=relative", "reward.coords=onehot"]))
         validate(compose("maze", overrides=["coords=onehot", "reward.coords=relative"]))  # re-encodable: fine
 
@@ -306,6 +306,12 @@ def test_relative_reward_view_is_decoded_from_the_agents_observation():
         assert torch.allclose(rel[0, :2], torch.tensor([4 / 16, 11 / 16])) and torch.equal(rel[:, 2:], obs[:, -9:])
     with pytest.raises(ValueError, match="absolute"):
         decode_cells(observation(grid, cells, goals, "relative"), "relative")
+    # the patch view keeps only the 3x3 neighbourhood, from any view
+    for src in ("onehot", "scalar", "relative"):
+        obs = observation(grid, cells, goals, src)
+        assert torch.equal(convert_observation(obs, src, "patch"), observation(grid, cells, goals, "patch"))
+    assert observation(grid, cells, goals, "patch").shape == (4, OBS_DIMS["patch"])
+    assert observation(grid, cells, goals, "patch")[2].tolist() == [0, 0, 1, 0, 0, 1, 0, 0, 1]  # (7, 15): wall on the right
     # a reward learned on the relative view reads an agent's one-hot transitions through StateActionReward
     drs = DrSReward(1, ["observation", "action"], {"observation": OBS_DIMS["relative"], "action": 5})
     obs = observation(grid, cells, goals, "onehot")

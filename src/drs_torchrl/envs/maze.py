@@ -44,10 +44,11 @@ MIDDLE_ROOM = (6, 10)
 BOTTOM_ROOM = (12, 15)
 # gate column of the (upper wall, lower wall); the test map moves both gates
 GATES = {"train": (3, 13), "test": (13, 3)}
-# coordinate encodings: one-hot (17 entries per coordinate), scalar (coordinate / 16), and relative:
+# coordinate encodings: one-hot (17 entries per coordinate), scalar (coordinate / 16), relative:
 # the goal's offset from the agent (dx, dy) / 16 only, with no absolute position (an egocentric view
-# a reward can read without learning where the train map's gates are)
-OBS_DIMS = {"onehot": 4 * SIZE + 9, "scalar": 4 + 9, "relative": 2 + 9}
+# a reward can read without learning where the train map's gates are), and patch: no coordinates at
+# all, only the 3x3 patch (the reward input the paper's maze figure caption describes)
+OBS_DIMS = {"onehot": 4 * SIZE + 9, "scalar": 4 + 9, "relative": 2 + 9, "patch": 9}
 _PATCH = torch.tensor([(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)])
 
 
@@ -92,6 +93,8 @@ def encode_coords(pos: torch.Tensor, goal: torch.Tensor, coords: str) -> torch.T
         return xy.float() / float(SIZE - 1)
     if coords == "relative":
         return (xy[..., 2:] - xy[..., :2]).float() / float(SIZE - 1)
+    if coords == "patch":
+        return xy.new_zeros((*xy.shape[:-1], 0), dtype=torch.float32)
     raise ValueError(f"coords must be one of {sorted(OBS_DIMS)}, got {coords!r}")
 
 
@@ -112,6 +115,8 @@ def convert_observation(obs: torch.Tensor, src: str, dst: str) -> torch.Tensor:
     """Re-encode observations from coordinate encoding ``src`` to ``dst`` (the 3x3 patch is kept)."""
     if src == dst:
         return obs
+    if dst == "patch":
+        return obs[..., -9:]
     pos, goal = decode_cells(obs, src)
     return torch.cat([encode_coords(pos, goal, dst), obs[..., -9:]], -1)
 
@@ -124,7 +129,7 @@ class ThreeRoomMaze(EnvBase):
         num_envs: number of grids stepped together (the env's batch size).
         max_steps: episode length limit (truncation).
         seed: seed of the env's own random generator (starts and goals).
-        coords: ``"onehot"``, ``"scalar"`` or ``"relative"`` encoding of the coordinates (:data:`OBS_DIMS`).
+        coords: ``"onehot"``, ``"scalar"``, ``"relative"`` or ``"patch"`` (none) encoding of the coordinates (:data:`OBS_DIMS`).
         dense_coef: 0 (default) gives the sparse reward. Above 0, the human-engineered dense baseline:
             ``success - dense_coef * d(s') / d_max`` with ``d`` the shortest-path distance to the goal
             on this map (breadth-first) and ``d_max`` its largest value, i.e. a per-step cost that

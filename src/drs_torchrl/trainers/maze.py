@@ -306,7 +306,7 @@ def demo_episodes(map_name: str, n: int, seed: int, coords: str = "onehot") -> l
 
 
 def _convertible(src: str, dst: str) -> bool:
-    return src == dst or src in ("onehot", "scalar")
+    return src == dst or src in ("onehot", "scalar") or dst == "patch"
 
 
 def validate(cfg: DictConfig) -> None:
@@ -328,7 +328,7 @@ def validate(cfg: DictConfig) -> None:
         (cfg.reward.get("coords") in (None, *OBS_DIMS), f"reward.coords must be null or one of {sorted(OBS_DIMS)}, got {cfg.reward.get('coords')!r}"),
         (_convertible(cfg.coords, cfg.reward.get("coords") or cfg.coords),
          f"a reward on coords={cfg.reward.get('coords')} cannot read the agent's coords={cfg.coords} observations "
-         "(absolute positions cannot be recovered from relative ones): use reward.coords=relative or null"),
+         "(absolute positions cannot be recovered from relative ones): use reward.coords=relative, patch or null"),
     ]
     bad = [msg for ok, msg in checks if not ok]
     if bad:
