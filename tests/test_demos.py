@@ -203,6 +203,7 @@ def test_a_policy_records_demos_of_its_successful_episodes(tmp_path):
     states, meta = record_policy_demos(run, "train", 3, seed=1, deterministic=False, max_episodes=200, progress=False)
     assert meta["family"] == "half_cheetah" and meta["episodes"] == 3 and meta["solver"].startswith("policy:")
     assert 3 <= meta["episodes_tried"] <= 200 and meta["success_rate"] == pytest.approx(3 / meta["episodes_tried"])
+    assert meta["max_episode_steps"] == 40  # the run's env settings (config.yaml) were used
     path = save_demos(states, meta, tmp_path / "hc.demos")
     episodes, meta = load_demos(path)
     for ep, n in zip(episodes, meta["lengths"]):
@@ -228,6 +229,12 @@ def test_policy_demo_errors_name_the_problem(tmp_path, capsys):
                                                  "variant_overrides": {"success_return": 1.0e6}})
     with pytest.raises(RuntimeError, match=r"succeeded in only 0 of 2 episodes.*--stochastic"):
         record_policy_demos(run, num=1, max_episodes=2, progress=False)
+    # a ManiSkill family without a solver; the run's variant overrides (5-step valve episodes) apply
+    tv = _policy_run(tmp_path / "tv", "turn_valve", {"family": "turn_valve", "variant_overrides": {"max_steps": 5}})
+    with pytest.raises(RuntimeError, match="succeeded in only 0 of 2 episodes"):
+        record_policy_demos(tv, num=1, max_episodes=2, progress=False)
+    assert main(["--from-policy", str(tv), "--override", "max_steps=0"]) == 2
+    assert "max_steps must be >= 1" in capsys.readouterr().err
     with pytest.raises(SystemExit) as e:
         main(["--from-policy", str(run), "--override", "nokey"])
     assert e.value.code == 2 and "KEY=VALUE" in capsys.readouterr().err

@@ -140,17 +140,33 @@ def test_one_named_variant_stays_fixed():
 
 def test_turn_valve_episodes_end_at_their_own_levels_time_limit():
     """ManiSkill's RotateValve levels have their own time limits (80 / 150 / 300); a pooled env keeps them."""
+    from drs_torchrl.envs.variants.valve import LEVEL_STEPS
+
     fam = get_family("turn_valve")
+
     def hold_still(tensordict):  # no motion: the valve cannot reach its goal, so only the time limit ends an episode
         return tensordict.set("action", torch.zeros(9))
 
-    for variant, overrides, steps in (("level0", None, 80), ("level4", None, 300), ("level4", {"max_steps": 7}, 7)):
-        env = make_family_env(fam, variant, variant_overrides=overrides, seed=0)
-        try:
+    # the train split draws levels 0, 2, 4 per episode: each episode ends at its own level's limit
+    env = make_family_env(fam, "train", seed=3)
+    try:
+        names, levels = env.base_env.variant_names, set()
+        for _ in range(6):
             td = env.rollout(400, policy=hold_still, break_when_any_done=True)
-            assert td.shape[0] == steps, (variant, overrides)
+            level = fam.variants[names[int(td["variant_index"][0])]]["level"]
+            levels.add(level)
+            assert td.shape[0] == LEVEL_STEPS[level], level
             assert bool(td["next", "truncated"][-1]) and not bool(td["next", "truncated"][:-1].any())
             assert not bool(td["next", "terminated"].any())
+        assert len(levels) >= 2, levels
+    finally:
+        env.close()
+    # a variant parameter sets one length (longer than the family's 300 too); env.max_episode_steps caps it
+    for variant, overrides, cap, steps in (("level4", {"max_steps": 7}, None, 7), ("level1", {"max_steps": 320}, None, 320),
+                                           ("level0", None, 50, 50)):
+        env = make_family_env(fam, variant, variant_overrides=overrides, max_episode_steps=cap, seed=0)
+        try:
+            assert env.rollout(400, policy=hold_still, break_when_any_done=True).shape[0] == steps, (variant, overrides, cap)
         finally:
             env.close()
     with pytest.raises(ValueError, match="max_steps"):

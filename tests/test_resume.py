@@ -132,3 +132,19 @@ def test_resume_errors_are_clear(tmp_path):
     env = dict(os.environ, PYTHONWARNINGS="ignore")
     p = subprocess.run([str(BIN / "drs-learn"), f"resume={tmp_path / 'nothing'}"], env=env, capture_output=True, text=True, timeout=120)
     assert p.returncode == 2 and "not a drs-torchrl run directory" in p.stderr
+
+
+def test_resume_config_applies_value_overrides_and_new_variant_parameters(tmp_path):
+    """``resume=RUN_DIR`` takes value overrides on the saved config; ``+`` may add a variant parameter
+    (e.g. ``+env.variant_overrides.max_steps=150``), nothing else that the run's config lacks."""
+    from drs_torchrl.trainers.apps import ResumeError, resume_config
+
+    OmegaConf.save(OmegaConf.create({"phase": "learn", "total_frames": 100, "env": {"family": "turn_valve", "variant_overrides": {}}}),
+                   tmp_path / "config.yaml")
+    cfg = resume_config(tmp_path, "learn", ["total_frames=200", "+env.variant_overrides.max_steps=150"])
+    assert cfg.total_frames == 200 and cfg.env.variant_overrides.max_steps == 150 and cfg.resume == str(tmp_path)
+    for bad in (["+env.nothing.x=1"], ["env.variant_overrides.max_steps=150"], ["typo_key=1"]):
+        with pytest.raises(ResumeError, match="does not exist in the config"):
+            resume_config(tmp_path, "learn", bad)
+    with pytest.raises(ResumeError, match="resume it with drs-learn"):
+        resume_config(tmp_path, "reuse", [])

@@ -371,7 +371,7 @@ def main(argv: list[str] | None = None) -> int:
     for algo in a.algos:
         for c in a.collectors:
             print(f"phase 1, {algo}, {c} collector ...", flush=True)
-            r = bench_learn(algo, a.learn_frames, [f"env.family={a.family}"], collector=c)
+            r = bench_learn(algo, a.learn_frames, [f"env={a.family}"], collector=c)
             torch.set_num_threads(threads)
             res["learn"].append(r)
             print(f"  {r['env_steps_per_s']:.1f} env steps/s, {r['updates_per_s']:.1f} updates/s", flush=True)

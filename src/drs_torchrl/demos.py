@@ -149,15 +149,17 @@ def record_policy_demos(policy_path: str | Path, variant: str = "train", num: in
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
     from drs_torchrl.envs.factory import make_family_env
-    from drs_torchrl.models import PolicyCheckpointError, load_policy, resolve_policy_path
+    from drs_torchrl.models import load_policy, read_policy_checkpoint
 
-    file = resolve_policy_path(policy_path)
-    ck = torch.load(file, map_location="cpu", weights_only=False)
-    if not isinstance(ck, dict) or "family" not in ck:
-        raise PolicyCheckpointError(f"{file} is not a drs-torchrl policy checkpoint; pass a run's checkpoints/policy.pt")
+    file, ck = read_policy_checkpoint(policy_path)
     family = get_family(ck["family"])
+    # the run's env settings, when the checkpoint sits in a run directory (RUN/checkpoints/policy.pt) of its family
     cfg_file = file.parent.parent / "config.yaml"
-    env_cfg = OmegaConf.to_container(OmegaConf.load(cfg_file).env) if cfg_file.is_file() else {}
+    env_cfg = {}
+    if file.parent.name == "checkpoints" and cfg_file.is_file():
+        env_cfg = OmegaConf.to_container(OmegaConf.load(cfg_file)).get("env") or {}
+        if env_cfg.get("family", family.name) != family.name:
+            env_cfg = {}
     overrides = {**(env_cfg.get("variant_overrides") or {}), **(variant_overrides or {})}
     env = make_family_env(family, variant, variant_overrides=overrides or None, seed=seed,
                           control_mode=env_cfg.get("control_mode"), max_episode_steps=env_cfg.get("max_episode_steps"))
@@ -166,8 +168,9 @@ def record_policy_demos(policy_path: str | Path, variant: str = "train", num: in
         keys = [k for k in ("observation", *family.all_info_keys, family.task_observation_key)
                 if k and k in env.observation_spec.keys(True)]
         labeller = StageIndicator(family.stage_keys)
-        limit = int(getattr(env.base_env, "max_episode_steps", 0) or 0) or int(env_cfg.get("max_episode_steps") or 0) \
-            or family.max_episode_steps
+        limit = int(getattr(env.base_env, "max_episode_steps", 0) or 0)  # the env's time limit, or -1/0: unknown
+        if limit <= 0:
+            limit = int(env_cfg.get("max_episode_steps") or family.max_episode_steps)
         episodes, lengths, tried_ids = [], [], []
         max_episodes = int(max_episodes or 20 * num)
         tried, t0 = 0, time.time()
@@ -200,7 +203,8 @@ def record_policy_demos(policy_path: str | Path, variant: str = "train", num: in
         "format": DEMO_FORMAT, "version": DEMO_VERSION, "family": family.name, "env_id": args.get("env_id", family.env_id),
         "variant": variant, "variant_kwargs": args.get("env_kwargs", {}), "stage_keys": list(family.stage_keys),
         "shapes": {k: int(data[k].shape[-1]) for k in ("observation", "stage_indicators", family.task_observation_key) if k},
-        "episodes": len(episodes), "lengths": lengths, "seeds": [seed], "episode_indices": tried_ids,
+        "episodes": len(episodes), "lengths": lengths, "seeds": [seed] * len(episodes), "episode_indices": tried_ids,
+        "max_episode_steps": limit,
         "solver": f"policy:{file} (frames {pmeta.get('frames')}, {'deterministic' if deterministic else 'stochastic'})",
         "episodes_tried": tried, "success_rate": len(episodes) / tried,
     }
@@ -579,7 +583,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--override", action="append", default=[], metavar="KEY=VALUE",
                    help="--from-policy: a variant parameter for every episode, e.g. max_steps=150 (repeatable)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", type=Path, default=None, help="default: demos/<family>-<variant>.demos")
+    p.add_argument("--out", type=Path, default=None, help="default: demos/<family>-<variant>.demos "
+                   "(-policy.demos with --from-policy)")
     a = p.parse_args(argv)
     if a.num is not None and a.num < 1:
         p.error("--num must be >= 1")
@@ -612,8 +617,8 @@ def main(argv: list[str] | None = None) -> int:
                 states, meta = load_maniskill_h5(a.from_h5, fam, a.variant, num=a.num)
             else:
                 states, meta = record_demos(fam, a.variant, a.num or 100, seed=a.seed)
-        out = a.out or Path("demos") / f"{fam.name}-{a.variant}.demos"
-    except (KeyError, DemoError, RuntimeError) as exc:
+        out = a.out or Path("demos") / f"{fam.name}-{a.variant}{'-policy' if a.from_policy else ''}.demos"
+    except (KeyError, DemoError, RuntimeError, ValueError, TypeError) as exc:
         print(f"drs-demos: error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
         return 2
     save_demos(states, meta, out)

@@ -82,13 +82,8 @@ def resolve_policy_path(path: str | Path) -> Path:
                                 "or its checkpoints/policy.pt)")
 
 
-def load_policy(path: str | Path, observation_spec, action_spec, *, family: str | None = None) -> tuple[ProbabilisticActor, dict]:
-    """The SAC actor of a ``drs-learn`` / ``drs-reuse`` policy checkpoint, built for the given specs.
-
-    Returns ``(actor, checkpoint metadata)``. Raises :class:`PolicyCheckpointError` (saying what
-    does not fit) for a file that is not a policy checkpoint, one from another task family, or one
-    whose input/action sizes differ from the env's.
-    """
+def read_policy_checkpoint(path: str | Path) -> tuple[Path, dict]:
+    """``(file, checkpoint dict)`` of a policy checkpoint (see :func:`resolve_policy_path`), checked for its format."""
     file = resolve_policy_path(path)
     try:
         ck = torch.load(file, map_location="cpu", weights_only=False)
@@ -98,6 +93,17 @@ def load_policy(path: str | Path, observation_spec, action_spec, *, family: str 
         got = ck.get("format") if isinstance(ck, dict) else type(ck).__name__
         raise PolicyCheckpointError(f"{file} is not a drs-torchrl policy checkpoint (format {got!r}); "
                                     "pass a run's checkpoints/policy.pt")
+    return file, ck
+
+
+def load_policy(path: str | Path, observation_spec, action_spec, *, family: str | None = None) -> tuple[ProbabilisticActor, dict]:
+    """The SAC actor of a ``drs-learn`` / ``drs-reuse`` policy checkpoint, built for the given specs.
+
+    Returns ``(actor, checkpoint metadata)``. Raises :class:`PolicyCheckpointError` (saying what
+    does not fit) for a file that is not a policy checkpoint, one from another task family, or one
+    whose input/action sizes differ from the env's.
+    """
+    file, ck = read_policy_checkpoint(path)
     if family is not None and ck.get("family") != family:
         raise PolicyCheckpointError(f"{file} is a policy for family {ck.get('family')!r}, not {family!r}")
     keys = list(ck["policy_in_keys"])

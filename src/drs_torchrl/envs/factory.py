@@ -41,10 +41,14 @@ def make_family_env(
     # a pooled family's env gets every variant of the split and draws one per episode (tasks/__init__.py)
     args = family.env_args(variant, variant_overrides)
     env_id = args["env_id"]
+    # variants with their own episode length (``max_steps``, e.g. turn_valve's levels) end their episodes
+    # themselves; the env's time limit must let the longest one run
+    pool = args["env_kwargs"].get("variants") or [args["env_kwargs"]]
+    variant_steps = [int(v["max_steps"]) for v in pool if isinstance(v, dict) and v.get("max_steps")]
     kwargs = dict(
         control_mode=control_mode or args["control_mode"] or family.control_mode,
         reward_mode=reward_mode,
-        max_episode_steps=max_episode_steps or family.max_episode_steps,
+        max_episode_steps=max_episode_steps or max([family.max_episode_steps, *variant_steps]),
         env_kwargs=args["env_kwargs"],
     )
     if family.task_observation_key:

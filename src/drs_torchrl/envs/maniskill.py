@@ -125,7 +125,8 @@ class ManiSkillEnv(EnvBase):
 
     @property
     def max_episode_steps(self) -> int:
-        """The time limit the env truncates at (ManiSkill's ``TimeLimitWrapper``), ``-1`` if none."""
+        """The env's time limit (ManiSkill's ``TimeLimitWrapper``), ``-1`` if none; a pooled env's variants
+        may end their episodes earlier (``variant_episode_steps``)."""
         env = self._gym_env
         while env is not None:
             limit = env.__dict__.get("_max_episode_steps")

@@ -54,13 +54,17 @@ def resume_config(run_dir: Path, phase: str, overrides: list[str], composed: Dic
         raise ResumeError(f"{run_dir} is a drs-{saved.get('phase')} run; resume it with drs-{saved.get('phase')}")
     for o in overrides:
         key, _, value = o.partition("=")
+        adding = key.startswith("+") and not key.startswith("++")
         key = key.lstrip("+~")
         if key == "resume" or key.startswith("hydra."):
             continue
         if key in GROUPS:
             raise ResumeError(f"cannot switch config group {key!r} of a run being resumed; start a new run instead")
         if OmegaConf.select(saved, key, default="__missing__") == "__missing__":
-            raise ResumeError(f"override {key!r} does not exist in the config of {run_dir}")
+            parent = key.rpartition(".")[0]
+            # "+key=value" may add an entry to a free-form mapping the run has (e.g. env.variant_overrides)
+            if not (adding and parent and isinstance(OmegaConf.select(saved, parent, default=None), DictConfig)):
+                raise ResumeError(f"override {key!r} does not exist in the config of {run_dir}")
         parsed = OmegaConf.select(composed, key) if composed is not None else yaml.safe_load(value)
         OmegaConf.update(saved, key, parsed, merge=True)
     saved.resume = str(run_dir)

@@ -41,7 +41,6 @@ from drs_torchrl.run_logger import RunLogger
 from drs_torchrl.tasks import get_family
 
 
-
 class ConfigError(ValueError):
     """A configuration value that cannot work, with the fix in its message."""
 
