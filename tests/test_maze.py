@@ -321,3 +321,23 @@ def test_relative_reward_view_is_decoded_from_the_agents_observation():
     want = drs.reward(TensorDict({"observation": observation(grid, cells, goals, "relative"), "action": act,
                                   "stage": torch.zeros(4, 1, dtype=torch.long)}, [4]))
     assert torch.allclose(got, want)
+
+
+def test_a_patch_only_reward_learns_and_is_reused(tmp_path):
+    """``reward.coords=patch``: the reward reads the 3x3 patch and the action, no coordinates."""
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base=None):
+        s = train(compose("maze", overrides=["phase=learn", "demos=10", "reward.coords=patch", *TINY]), tmp_path / "learn")
+        assert s["disc_updates"] > 0
+        reward = DrSReward.from_checkpoint(tmp_path / "learn" / "reward.pt")
+        assert reward.in_shapes["observation"] == OBS_DIMS["patch"]
+        s = train(compose("maze", overrides=["phase=reuse", f"reward.checkpoint={tmp_path / 'learn' / 'reward.pt'}", *TINY]),
+                  tmp_path / "reuse")
+        assert s["map"] == "test" and s["frames"] == 1024
+    # same patch and action, anywhere on either map: the same reward
+    grid = make_grid("train")
+    cells, goals = torch.tensor([[13, 5], [8, 9]]), torch.tensor([[2, 8], [3, 1]])  # both open all round
+    act = torch.nn.functional.one_hot(torch.tensor([UP, UP]), 5).float()
+    td = TensorDict({"observation": observation(grid, cells, goals, "onehot"), "action": act,
+                     "next": {"stage": torch.zeros(2, 1, dtype=torch.long)}}, [2])
+    r = StateActionReward(reward, "onehot")(td)["next", "reward"]
+    assert torch.equal(r[0], r[1])
