@@ -341,3 +341,30 @@ def test_a_patch_only_reward_learns_and_is_reused(tmp_path):
                      "next": {"stage": torch.zeros(2, 1, dtype=torch.long)}}, [2])
     r = StateActionReward(reward, "onehot")(td)["next", "reward"]
     assert torch.equal(r[0], r[1])
+
+
+def test_n_step_windows_that_reach_the_goal_are_terminal():
+    """A 3-step window that ends on the goal must not bootstrap (TorchRL's MultiStepTransform keeps the
+    first step's done flags; ``mark_terminal_obs`` / ``terminal_at_window_end`` carry the right one)."""
+    from torchrl.data import LazyTensorStorage, ReplayBuffer
+    from torchrl.envs.transforms import MultiStepTransform
+
+    from drs_torchrl.trainers.maze import mark_terminal_obs, terminal_at_window_end
+
+    T = 10
+    term = torch.zeros(1, T, 1, dtype=torch.bool)
+    term[0, 5] = True  # the goal is reached by the step at t = 5; a new episode starts at t = 6
+    trunc = torch.zeros(1, T, 1, dtype=torch.bool)
+    trunc[0, 9] = True
+    obs = torch.arange(T, dtype=torch.float32).reshape(1, T, 1)
+    batch = TensorDict({"observation": obs, "action": torch.zeros(1, T, 5),
+                        "next": {"observation": obs + 100, "reward": torch.ones(1, T, 1), "terminated": term,
+                                 "truncated": trunc, "done": term | trunc}}, [1, T], names=[None, "time"])
+    rb = ReplayBuffer(storage=LazyTensorStorage(100, ndim=2), transform=MultiStepTransform(3, 0.9))
+    rb.extend(mark_terminal_obs(batch))
+    data = terminal_at_window_end(rb.storage[:].reshape(-1).clone())
+    by_t = {int(o): (bool(t), float(n), int(k)) for o, t, n, k in zip(data["observation"].reshape(-1), data["next", "terminated"].reshape(-1),
+                                                                       data["next", "observation"].reshape(-1), data["steps_to_next_obs"].reshape(-1))}
+    # windows from t = 3, 4, 5 end on the goal (obs 105): terminal; t = 2 ends on 104: not
+    assert by_t[3] == (True, 105.0, 3) and by_t[4] == (True, 105.0, 2) and by_t[5] == (True, 105.0, 1)
+    assert by_t[2] == (False, 104.0, 3) and by_t[6] == (False, 108.0, 3)

@@ -81,6 +81,30 @@ REWARDS = ("drs", "sparse", "semi_sparse", "dense")
 FAMILY = "three_room_maze"
 RB_KEYS = ["observation", "action", ("next", "observation"), ("next", "reward"), ("next", "done"),
            ("next", "terminated"), ("next", "truncated"), ("next", "stage")]
+# n-step targets: whether the observation a window ends on is terminal (see terminal_at_window_end)
+TERMINAL_AT_OBS = ("next", "terminal_obs")
+
+
+def mark_terminal_obs(batch: TensorDictBase) -> TensorDictBase:
+    """Copy ``("next", "terminated")`` to :data:`TERMINAL_AT_OBS` before n-step windows are formed.
+
+    TorchRL 0.14's ``MultiStepTransform`` cuts a window at the episode's end and gathers the
+    ``"next"`` entries of the window's last step, *except* the done keys, which stay those of the
+    window's first step. A window that reaches the goal a few steps ahead therefore ends on the
+    terminal observation with ``terminated=False``, and the TD target bootstraps from the value of
+    a state that has none. A copy under another name is gathered with the observation, so it says
+    whether the observation the window ends on is terminal.
+    """
+    batch.set(TERMINAL_AT_OBS, batch.get(("next", "terminated")).clone())
+    return batch
+
+
+def terminal_at_window_end(sample: TensorDictBase) -> TensorDictBase:
+    """Set ``("next", "terminated")`` (and ``"done"``) of sampled n-step windows from :data:`TERMINAL_AT_OBS`."""
+    term = sample.get(TERMINAL_AT_OBS)
+    sample.set(("next", "terminated"), term)
+    sample.set(("next", "done"), sample.get(("next", "done")) | term)
+    return sample
 
 
 class MazeConfigError(ValueError):
@@ -440,7 +464,10 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
                 next_eval += int(cfg.eval.interval)
             n = batch.numel()
             frames += n
-            rb.extend(batch.select(*RB_KEYS) if n_steps > 1 else batch.reshape(-1).select(*RB_KEYS))
+            if n_steps > 1:
+                rb.extend(mark_terminal_obs(batch.select(*RB_KEYS)))
+            else:
+                rb.extend(batch.reshape(-1).select(*RB_KEYS))
             for ep in assembler.add(batch):
                 stage = int(ep.get(("next", "stage")).max())
                 episodes.append((stage, ep.shape[0]))
@@ -454,6 +481,8 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
             while owed >= 1:
                 owed -= 1
                 sample = rb.sample()
+                if n_steps > 1:
+                    sample = terminal_at_window_end(sample)
                 out = loss(sample)
                 opt.zero_grad(set_to_none=True)
                 out["loss"].backward()
