@@ -198,10 +198,11 @@ def test_a_policy_records_demos_of_its_successful_episodes(tmp_path):
     from drs_torchrl.tasks import get_family
 
     # HalfCheetah (no solver): success = the running return passed the threshold; 0.0 makes some episodes succeed
-    run = _policy_run(tmp_path, "half_cheetah", {"family": "half_cheetah", "max_episode_steps": 40,
+    run = _policy_run(tmp_path, "half_cheetah", {"family": "half_cheetah", "split": "test", "max_episode_steps": 40,
                                                  "variant_overrides": {"success_return": 0.0}})
-    states, meta = record_policy_demos(run, "train", 3, seed=1, deterministic=False, max_episodes=200, progress=False)
+    states, meta = record_policy_demos(run, None, 3, seed=1, deterministic=False, max_episodes=200, progress=False)
     assert meta["family"] == "half_cheetah" and meta["episodes"] == 3 and meta["solver"].startswith("policy:")
+    assert meta["variant"] == "test"  # by default, the split the run trained on
     assert 3 <= meta["episodes_tried"] <= 200 and meta["success_rate"] == pytest.approx(3 / meta["episodes_tried"])
     assert meta["max_episode_steps"] == 40  # the run's env settings (config.yaml) were used
     path = save_demos(states, meta, tmp_path / "hc.demos")

@@ -2,6 +2,7 @@
 row of train.csv every ~2k env steps) in env-step windows: the figures quoted for the long runs.
 
     .venv/bin/python results/families/reach_windows.py results/families/pick_and_place_long results/families/stack_cube_long
+    .venv/bin/python results/families/reach_windows.py --step 50000 results/families/place_sphere_long   # uniform windows
 """
 import csv
 import statistics
@@ -9,11 +10,17 @@ import sys
 
 WINDOWS = [(0, 250_000), (250_000, 300_000), (300_000, 360_000), (360_000, 400_000), (400_000, 450_000)]
 
-for run in sys.argv[1:]:
+args = sys.argv[1:]
+step = None
+if args[:1] == ["--step"]:
+    step, args = int(args[1]), args[2:]
+
+for run in args:
     rows = list(csv.DictReader(open(f"{run}/train.csv")))
     xs = [(float(r["frames"]), float(r["reach_stage_1"])) for r in rows if r["reach_stage_1"] not in ("", "nan")]
+    windows = WINDOWS if step is None else [(lo, lo + step) for lo in range(0, int(max(f for f, _ in xs)) + 1, step)]
     print(run)
-    for lo, hi in WINDOWS:
+    for lo, hi in windows:
         v = [x for f, x in xs if lo < f <= hi]
         if v:
             print(f"  {lo // 1000:>3}-{hi // 1000}k: mean {statistics.mean(v):.2f}, min {min(v):.2f}, max {max(v):.2f} ({len(v)} rows)")

@@ -134,7 +134,7 @@ def record_demos(family: TaskFamily, variant: str, num: int, *, seed: int = 0, v
     return data, meta
 
 
-def record_policy_demos(policy_path: str | Path, variant: str = "train", num: int = 100, *, seed: int = 0,
+def record_policy_demos(policy_path: str | Path, variant: str | None = None, num: int = 100, *, seed: int = 0,
                         variant_overrides: dict | None = None, deterministic: bool = True, max_episodes: int | None = None,
                         progress: bool = True) -> tuple[TensorDict, dict]:
     """Roll out a trained ``drs-learn``/``drs-reuse`` policy until ``num`` episodes succeed; returns (states, meta).
@@ -161,6 +161,7 @@ def record_policy_demos(policy_path: str | Path, variant: str = "train", num: in
         if env_cfg.get("family", family.name) != family.name:
             env_cfg = {}
     overrides = {**(env_cfg.get("variant_overrides") or {}), **(variant_overrides or {})}
+    variant = variant or env_cfg.get("split") or "train"  # default: the split the policy was trained on
     env = make_family_env(family, variant, variant_overrides=overrides or None, seed=seed,
                           control_mode=env_cfg.get("control_mode"), max_episode_steps=env_cfg.get("max_episode_steps"))
     try:
@@ -571,7 +572,8 @@ def main(argv: list[str] | None = None) -> int:
                                 "record a trained policy's successful episodes (--from-policy), "
                                 "or convert a ManiSkill trajectory file (--from-h5)")
     p.add_argument("--family", default="pick_cube")
-    p.add_argument("--variant", default="train", help="variant name, or train/test (the split's first variant)")
+    p.add_argument("--variant", default=None, help="variant name, or train/test (default: train; with --from-policy, "
+                   "the split the run trained on)")
     p.add_argument("--num", type=int, default=None, help="default: 100 recorded; all successful ones of --from-h5")
     p.add_argument("--from-h5", type=Path, default=None, metavar="PATH.h5",
                    help="convert ManiSkill's trajectory file PATH.h5 (+ PATH.json) by replaying it in the family's env")
@@ -614,10 +616,10 @@ def main(argv: list[str] | None = None) -> int:
         else:
             fam = get_family(a.family)
             if a.from_h5 is not None:
-                states, meta = load_maniskill_h5(a.from_h5, fam, a.variant, num=a.num)
+                states, meta = load_maniskill_h5(a.from_h5, fam, a.variant or "train", num=a.num)
             else:
-                states, meta = record_demos(fam, a.variant, a.num or 100, seed=a.seed)
-        out = a.out or Path("demos") / f"{fam.name}-{a.variant}{'-policy' if a.from_policy else ''}.demos"
+                states, meta = record_demos(fam, a.variant or "train", a.num or 100, seed=a.seed)
+        out = a.out or Path("demos") / f"{fam.name}-{meta['variant']}{'-policy' if a.from_policy else ''}.demos"
     except (KeyError, DemoError, RuntimeError, ValueError, TypeError) as exc:
         print(f"drs-demos: error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
         return 2
