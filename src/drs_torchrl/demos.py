@@ -592,26 +592,21 @@ def main(argv: list[str] | None = None) -> int:
         p.error("--num must be >= 1")
     if a.from_policy is not None and a.from_h5 is not None:
         p.error("--from-policy and --from-h5 are two different sources; give one")
+    import yaml
+
     overrides = {}
     for item in a.override:
         key, eq, value = item.partition("=")
         if not eq or not key:
             p.error(f"--override takes KEY=VALUE, got {item!r}")
-        import yaml
-
         overrides[key] = yaml.safe_load(value)
     if overrides and a.from_policy is None:
         p.error("--override applies to --from-policy")
     try:
-        if a.from_policy is not None:
-            from drs_torchrl.models import PolicyCheckpointError
-
-            try:
-                states, meta = record_policy_demos(a.from_policy, a.variant, a.num or 100, seed=a.seed,
-                                                   variant_overrides=overrides, deterministic=not a.stochastic,
-                                                   max_episodes=a.max_episodes)
-            except PolicyCheckpointError as exc:
-                raise DemoError(str(exc)) from exc
+        if a.from_policy is not None:  # a bad checkpoint raises PolicyCheckpointError, a ValueError
+            states, meta = record_policy_demos(a.from_policy, a.variant, a.num or 100, seed=a.seed,
+                                               variant_overrides=overrides, deterministic=not a.stochastic,
+                                               max_episodes=a.max_episodes)
             fam = get_family(meta["family"])
         else:
             fam = get_family(a.family)

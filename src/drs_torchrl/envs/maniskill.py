@@ -111,7 +111,8 @@ class ManiSkillEnv(EnvBase):
         self.observation_key = observation_key
         self.task_observation_key = task_observation_key
         self.variant_names: list[str] | None = getattr(self._gym_env.unwrapped, "variant_names", None)
-        self._variant_steps = getattr(self._gym_env.unwrapped, "variant_episode_steps", None)
+        u = self._gym_env.unwrapped  # per-variant time limits: only pools whose variants carry max_steps
+        self._variant_steps = u.variant_episode_steps if "max_steps" in getattr(u, "VARIANT_DEFAULTS", {}) else None
         self._sim_device = torch.device("cuda" if gpu else "cpu")
         batch = torch.Size([num_envs]) if gpu else torch.Size([])
         super().__init__(device=device if device is not None else self._sim_device, batch_size=batch)
