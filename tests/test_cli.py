@@ -74,6 +74,19 @@ def test_reuse_loads_the_learned_reward_on_the_test_variant_and_trains(learned, 
     assert (tmp_path / "checkpoints" / "policy.pt").is_file()
 
 
+def test_compare_and_plot_read_real_runs(learned, tmp_path):
+    p = run("drs-compare", str(learned), str(learned), "--group-by", "phase", "env.split", "--out", str(tmp_path), cwd=tmp_path)
+    assert p.returncode == 0, p.stderr[-3000:]
+    rows = list(csv.DictReader((tmp_path / "compare.csv").open()))
+    ev = [r for r in rows if r["source"] == "eval" and r["metric"] == "success_rate"]
+    assert ev and {r["group"] for r in rows} == {"learn train"} and all(r["n"] == "2" and float(r["std"]) == 0.0 for r in ev)
+    assert "| learn train | 2 (1, 1) |" in (tmp_path / "compare.md").read_text()
+    assert (tmp_path / "compare.png").stat().st_size > 10_000
+    p = run("drs-plot", str(learned), "--out", str(tmp_path / "progress.png"), cwd=tmp_path)
+    assert p.returncode == 0, p.stderr[-3000:]
+    assert (tmp_path / "progress.png").stat().st_size > 10_000
+
+
 @pytest.mark.parametrize("baseline", ["semi_sparse", "dense"])
 def test_reuse_with_baseline_rewards(baseline, tmp_path):
     p = run("drs-reuse", *TINY, f"reward={baseline}", "total_frames=384", f"hydra.run.dir={tmp_path}", cwd=tmp_path)

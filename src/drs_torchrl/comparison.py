@@ -1,0 +1,229 @@
+"""``drs-compare RUN_DIR ...``: success-rate curves of several runs, grouped and averaged over seeds.
+
+The paper reports every method as the mean and standard deviation over seeds of the evaluation
+success rate against env steps (Sec. 5, Fig. 4-6). This module groups ``drs-learn`` /
+``drs-reuse`` run directories by keys of their resolved ``config.yaml`` (``reward.name`` by
+default, e.g. ``drs`` vs ``semi_sparse``), and writes:
+
+- ``compare.png``: success rate and the reach rate of each earlier stage, of evaluation episodes
+  (deterministic policy) and of training episodes (rolling), each as mean and std over the runs of
+  a group;
+- ``compare.csv``: the aggregated curves (group, metric, step, number of runs, mean, std);
+- ``compare.md``: per group the runs, the env steps the shortest run reached, the final evaluation
+  success per run, its mean +- std, and the mean over the last three evaluations.
+
+Runs of unequal length are averaged over the runs that reached each step (the ``n`` column).
+Everything here reads files only: it works on finished, interrupted and still-running runs.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+DEFAULT_GROUP_BY = ("reward.name",)
+
+
+class CompareError(ValueError):
+    """A run directory (or a grouping key) that cannot be compared; the message names it."""
+
+
+@dataclass
+class RunRecord:
+    path: Path
+    label: str
+    seed: object
+    eval: "object"          # pandas DataFrame (eval.csv), or None when no evaluation ran yet
+    train: "object"         # pandas DataFrame (train.csv)
+
+
+@dataclass
+class Group:
+    label: str
+    runs: list[RunRecord] = field(default_factory=list)
+
+
+def _lookup(cfg: dict, dotted: str, run: Path):
+    node = cfg
+    for part in dotted.split("."):
+        if not isinstance(node, dict) or part not in node:
+            raise CompareError(f"{run}/config.yaml has no key {dotted!r} to group by "
+                               f"(keys at that level: {sorted(node) if isinstance(node, dict) else node!r})")
+        node = node[part]
+    return node
+
+
+def load_run(run: Path, group_by: tuple[str, ...] = DEFAULT_GROUP_BY) -> RunRecord:
+    """One run directory: its CSVs and its group label (the values of ``group_by`` in its config)."""
+    import pandas as pd
+    from omegaconf import OmegaConf
+
+    run = Path(run)
+    if not (run / "train.csv").exists():
+        raise CompareError(f"{run} has no train.csv: is it a drs-learn/drs-reuse run directory?")
+    cfg_path = run / "config.yaml"
+    if not cfg_path.exists():
+        cfg_path = run / ".hydra" / "config.yaml"
+    if not cfg_path.exists():
+        raise CompareError(f"{run} has neither config.yaml nor .hydra/config.yaml: cannot tell which group it belongs to")
+    cfg = OmegaConf.to_container(OmegaConf.load(cfg_path), resolve=False) or {}
+    label = " ".join(f"{_lookup(cfg, k, run)}" for k in group_by)
+    ev = pd.read_csv(run / "eval.csv") if (run / "eval.csv").exists() else None
+    if ev is not None and ev.empty:
+        ev = None
+    return RunRecord(path=run, label=label, seed=cfg.get("seed"), eval=ev, train=pd.read_csv(run / "train.csv"))
+
+
+def group_runs(runs: list[RunRecord]) -> list[Group]:
+    groups: dict[str, Group] = {}
+    for r in runs:
+        groups.setdefault(r.label, Group(r.label)).runs.append(r)
+    return list(groups.values())
+
+
+def aggregate(frames: list, column: str) -> "object":
+    """Mean and std over runs of ``column``, per step: a DataFrame with step, n, mean, std.
+
+    Each run contributes at the steps it logged; a step is kept when at least one run has it.
+    """
+    import pandas as pd
+
+    parts = [f[["step", column]].dropna().set_index("step")[column] for f in frames if f is not None and column in f]
+    if not parts:
+        return pd.DataFrame(columns=["step", "n", "mean", "std"])
+    wide = pd.concat(parts, axis=1)
+    out = pd.DataFrame({
+        "step": wide.index.to_numpy(),
+        "n": wide.notna().sum(axis=1).to_numpy(),
+        "mean": wide.mean(axis=1, skipna=True).to_numpy(),
+        "std": wide.std(axis=1, skipna=True, ddof=0).fillna(0.0).to_numpy(),
+    })
+    return out.sort_values("step").reset_index(drop=True)
+
+
+def _stage_columns(frames: list) -> list[str]:
+    cols: set[str] = set()
+    for f in frames:
+        if f is not None:
+            cols.update(c for c in f.columns if c.startswith("reach_stage_"))
+    return sorted(cols, key=lambda c: int(c.rsplit("_", 1)[1]))
+
+
+def summary_rows(groups: list[Group]) -> list[dict]:
+    rows = []
+    for g in groups:
+        finals, last3 = [], []
+        for r in g.runs:
+            if r.eval is not None:
+                s = r.eval["success_rate"].to_numpy(dtype=float)
+                finals.append(float(s[-1]))
+                last3.append(float(np.mean(s[-3:])))
+        rows.append({
+            "group": g.label,
+            "runs": len(g.runs),
+            "seeds": [r.seed for r in g.runs],
+            "steps": int(min(int(r.train["step"].iloc[-1]) for r in g.runs)),
+            "final": finals,
+            "final_mean": float(np.mean(finals)) if finals else float("nan"),
+            "final_std": float(np.std(finals)) if finals else float("nan"),
+            "last3_mean": float(np.mean(last3)) if last3 else float("nan"),
+        })
+    return rows
+
+
+def _steps_label(x, _pos=None) -> str:
+    return f"{x / 1e6:g}M" if abs(x) >= 1e6 else f"{x / 1e3:g}k" if abs(x) >= 1e3 else f"{x:g}"
+
+
+def compare(run_dirs: list[Path], out_dir: Path, group_by: tuple[str, ...] = DEFAULT_GROUP_BY) -> dict[str, Path]:
+    """Group ``run_dirs``, write ``compare.png``, ``compare.csv`` and ``compare.md`` into ``out_dir``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import pandas as pd
+    from matplotlib.ticker import FuncFormatter
+
+    if not run_dirs:
+        raise CompareError("no run directories given")
+    groups = group_runs([load_run(Path(r), tuple(group_by)) for r in run_dirs])
+    # the last reach column is the success stage, already drawn as success_rate
+    eval_stages = _stage_columns([r.eval for g in groups for r in g.runs])[:-1]
+    train_stages = _stage_columns([r.train for g in groups for r in g.runs])[:-1]
+    panels = [("eval", "success_rate", "evaluation success (deterministic policy)")]
+    panels += [("eval", c, f"evaluation: reached stage {c.rsplit('_', 1)[1]}") for c in eval_stages]
+    panels += [("train", "success_rate", "training episodes: success (rolling)")]
+    panels += [("train", c, f"training episodes: reached stage {c.rsplit('_', 1)[1]} (rolling)") for c in train_stages]
+    ncols = min(3, len(panels))
+    nrows = -(-len(panels) // ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(5.2 * ncols, 3.8 * nrows), squeeze=False)
+    records = []
+    for ax, (source, column, title) in zip(axes.ravel(), panels):
+        for i, g in enumerate(groups):
+            frames = [getattr(r, source) for r in g.runs]
+            agg = aggregate(frames, column)
+            if agg.empty:
+                continue
+            color = f"C{i}"
+            ax.plot(agg["step"], agg["mean"], color=color, marker="o" if source == "eval" else None,
+                    ms=3, label=f"{g.label} (n={len(g.runs)})")
+            ax.fill_between(agg["step"], agg["mean"] - agg["std"], agg["mean"] + agg["std"], color=color, alpha=0.2)
+            for row in agg.itertuples(index=False):
+                records.append({"group": g.label, "source": source, "metric": column, "step": int(row.step),
+                                "n": int(row.n), "mean": float(row.mean), "std": float(row.std)})
+        ax.set_title(title, fontsize=10)
+        ax.set_xlabel("env steps")
+        ax.xaxis.set_major_formatter(FuncFormatter(_steps_label))
+        ax.set_ylim(-0.02, 1.02)
+        ax.grid(alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=8)
+    for ax in axes.ravel()[len(panels):]:
+        ax.set_visible(False)
+    fig.suptitle("mean and std over the runs of each group (" + ", ".join(group_by) + ")", fontsize=10)
+    fig.tight_layout()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = {"png": out_dir / "compare.png", "csv": out_dir / "compare.csv", "md": out_dir / "compare.md"}
+    fig.savefig(paths["png"], dpi=110)
+    plt.close(fig)
+    pd.DataFrame.from_records(records, columns=["group", "source", "metric", "step", "n", "mean", "std"]).to_csv(
+        paths["csv"], index=False)
+    lines = [f"| {' / '.join(group_by)} | runs (seeds) | env steps (shortest run) | final eval success per run | "
+             "mean +- std | mean of the last 3 evals |", "|---|---|---|---|---|---|"]
+    for row in summary_rows(groups):
+        finals = ", ".join(f"{x:.2f}" for x in row["final"]) or "(no eval yet)"
+        ms = f"{row['final_mean']:.2f} +- {row['final_std']:.2f}" if row["final"] else "-"
+        l3 = f"{row['last3_mean']:.2f}" if row["final"] else "-"
+        seeds = ", ".join(str(s) for s in row["seeds"])
+        lines.append(f"| {row['group']} | {row['runs']} ({seeds}) | {row['steps']} | {finals} | {ms} | {l3} |")
+    lines.append("")
+    lines.append("Runs: " + ", ".join(f"`{r.path}`" for g in groups for r in g.runs))
+    paths["md"].write_text("\n".join(lines) + "\n")
+    return paths
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(
+        prog="drs-compare",
+        description="success-rate curves of drs-learn/drs-reuse runs, grouped by config keys, mean +- std over seeds")
+    p.add_argument("runs", nargs="+", type=Path, help="run directories (each with train.csv, eval.csv, config.yaml)")
+    p.add_argument("--group-by", nargs="+", default=list(DEFAULT_GROUP_BY), metavar="KEY",
+                   help="dotted config keys whose values name a group (default: reward.name), e.g. env.split reward.name")
+    p.add_argument("--out", type=Path, default=Path("."), help="folder for compare.png / .csv / .md (default: .)")
+    a = p.parse_args(argv)
+    try:
+        paths = compare(a.runs, a.out, tuple(a.group_by))
+    except CompareError as exc:
+        print(f"drs-compare: error: {exc}", file=sys.stderr)
+        return 2
+    for v in paths.values():
+        print(v)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

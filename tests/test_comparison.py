@@ -1,0 +1,82 @@
+"""drs-compare: grouping runs by config keys and averaging their curves over seeds.
+
+The aggregation is checked on hand-written run folders (CSV + config.yaml) whose means and stds
+are known; ``test_cli.py`` runs drs-compare on real drs-learn output.
+"""
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drs_torchrl.comparison import CompareError, compare, main
+
+
+def make_run(root: Path, name: str, reward: str, seed: int, success: list[float], reach1: list[float], interval=1000):
+    d = root / name
+    d.mkdir(parents=True)
+    (d / "config.yaml").write_text(f"env:\n  family: pick_cube\n  split: test\nreward:\n  name: {reward}\nseed: {seed}\nphase: reuse\n")
+    steps = [interval * (i + 1) for i in range(len(success))]
+    with (d / "eval.csv").open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["step", "episodes", "success_rate", "reach_stage_1", "reach_stage_2"])
+        for s, y, r in zip(steps, success, reach1):
+            w.writerow([s, 10, y, r, y])
+    with (d / "train.csv").open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["step", "success_rate", "reach_stage_1", "reach_stage_2"])
+        for s, y, r in zip(steps, success, reach1):
+            w.writerow([s, y / 2, r, y / 2])
+    return d
+
+
+def rows_of(path: Path):
+    return list(csv.DictReader(path.open()))
+
+
+def test_groups_by_reward_and_averages_over_seeds(tmp_path):
+    a0 = make_run(tmp_path, "a0", "drs", 0, [0.0, 0.4, 0.8], [0.2, 0.6, 1.0])
+    a1 = make_run(tmp_path, "a1", "drs", 1, [0.0, 0.2, 0.6], [0.0, 0.4, 1.0])
+    a2 = make_run(tmp_path, "a2", "drs", 2, [0.2, 0.6], [0.4, 0.8])  # interrupted: one eval fewer
+    b0 = make_run(tmp_path, "b0", "semi_sparse", 0, [0.0, 0.0, 0.1], [0.0, 0.1, 0.2])
+    paths = compare([a0, a1, a2, b0], tmp_path / "out")
+    assert all(p.is_file() and p.stat().st_size > 0 for p in paths.values())
+
+    rows = [r for r in rows_of(paths["csv"]) if r["source"] == "eval" and r["metric"] == "success_rate"]
+    drs = {int(r["step"]): r for r in rows if r["group"] == "drs"}
+    assert [int(drs[s]["n"]) for s in (1000, 2000, 3000)] == [3, 3, 2]
+    np.testing.assert_allclose(float(drs[2000]["mean"]), np.mean([0.4, 0.2, 0.6]))
+    np.testing.assert_allclose(float(drs[2000]["std"]), np.std([0.4, 0.2, 0.6]))
+    np.testing.assert_allclose(float(drs[3000]["mean"]), 0.7)  # the runs that reached 3000 steps only
+    semi = [r for r in rows if r["group"] == "semi_sparse"]
+    assert [float(r["std"]) for r in semi] == [0.0, 0.0, 0.0] and [int(r["n"]) for r in semi] == [1, 1, 1]
+    # the earlier stages get their own curves, from eval and from training episodes; the last
+    # stage is success, drawn once
+    metrics = {(r["source"], r["metric"]) for r in rows_of(paths["csv"])}
+    assert metrics == {("eval", "success_rate"), ("eval", "reach_stage_1"),
+                       ("train", "success_rate"), ("train", "reach_stage_1")}
+
+    md = paths["md"].read_text()
+    drs_line = next(line for line in md.splitlines() if line.startswith("| drs "))
+    # final success per run, its mean +- std, and the shortest run's length
+    assert "0.80, 0.60, 0.60" in drs_line and f"{np.mean([0.8, 0.6, 0.6]):.2f} +- {np.std([0.8, 0.6, 0.6]):.2f}" in drs_line
+    assert "| 2000 |" in drs_line and "3 (0, 1, 2)" in drs_line
+
+
+def test_group_by_several_keys(tmp_path):
+    a = make_run(tmp_path, "a", "drs", 0, [0.1], [0.1])
+    b = make_run(tmp_path, "b", "drs", 1, [0.3], [0.3])
+    paths = compare([a, b], tmp_path / "out", group_by=("env.split", "seed"))
+    groups = {r["group"] for r in rows_of(paths["csv"])}
+    assert groups == {"test 0", "test 1"}
+
+
+def test_bad_inputs_name_what_is_wrong(tmp_path, capsys):
+    a = make_run(tmp_path, "a", "drs", 0, [0.1], [0.1])
+    with pytest.raises(CompareError, match="no key 'reward.nmae'"):
+        compare([a], tmp_path / "out", group_by=("reward.nmae",))
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert main([str(empty), "--out", str(tmp_path / "out2")]) == 2
+    assert "has no train.csv" in capsys.readouterr().err
+    assert not (tmp_path / "out2").exists()
