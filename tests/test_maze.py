@@ -141,6 +141,30 @@ def test_state_action_reward_reads_s_and_a_at_the_root_and_the_stage_of_s_prime(
     expected = r.alpha * torch.tanh(r.discriminators(x)) - 2.0
     assert torch.allclose(td["next", "reward"][:5], expected[:5])
     assert td["next", "reward"][5].item() == -1.0  # success: (1 + 0) / 1 - 2, no dense term
+    # dqn.reward_scale: the agent's reward is multiplied, the discriminator is the same
+    scaled = StateActionReward(r, scale=0.1)(td.clone())
+    assert torch.allclose(scaled["next", "reward"], 0.1 * td["next", "reward"])
+
+
+@pytest.mark.parametrize("reward_name", ["semi_sparse", "dense"])
+def test_reward_scale_multiplies_the_env_reward(reward_name):
+    from torchrl.envs.utils import step_mdp
+
+    envs = [make_env("train", 4, 30, 0, reward_name, reward_scale=s) for s in (1.0, 0.1)]
+    actions = onehot(torch.randint(0, 5, (4, 30), generator=torch.Generator().manual_seed(1)))
+    rewards = []
+    for e in envs:
+        check_env_specs(e)
+        e.set_seed(3)
+        td = e.reset()
+        rs = []
+        for t in range(30):
+            td = e.step(td.set("action", actions[:, t]))
+            rs.append(td["next", "reward"])
+            td = step_mdp(td)
+        rewards.append(torch.stack(rs))
+    assert (rewards[0] < 0).all()  # both rewards cost something on every step that does not succeed
+    assert torch.allclose(rewards[1], 0.1 * rewards[0])
 
 
 def test_discriminator_on_maze_state_actions_prefers_the_demonstrated_moves():
@@ -191,6 +215,8 @@ def test_config_errors_name_the_fix():
             validate(compose("maze", overrides=["phase=reuse", "reward.name=drs"]))
         with pytest.raises(MazeConfigError, match="phase=learn learns the DrS reward"):
             validate(compose("maze", overrides=["phase=learn", "reward.name=sparse"]))
+        with pytest.raises(MazeConfigError, match="dqn.reward_scale must be > 0"):
+            validate(compose("maze", overrides=["dqn.reward_scale=0"]))
         with pytest.raises(MazeConfigError, match="multiple of num_envs"):
             validate(compose("maze", overrides=["num_envs=7"]))
         with pytest.raises(MazeConfigError, match="use reward.coords=relative, patch or null"):

@@ -56,7 +56,7 @@ from tensordict.nn import TensorDictSequential
 from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, ReplayBuffer
 from torchrl.envs import TransformedEnv
-from torchrl.envs.transforms import MultiStepTransform, Transform
+from torchrl.envs.transforms import MultiStepTransform, RewardScaling, Transform
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import MLP, EGreedyModule, QValueActor
 from torchrl.objectives import DQNLoss, ValueEstimators
@@ -123,20 +123,24 @@ class StateActionReward(Transform):
     the :class:`StageIndicator`) it writes the reward of each step as it is taken.
     ``obs_coords``: the coordinate encoding of the env's observations; when the reward was learned on
     another one (e.g. ``relative``), observations are re-encoded before the reward reads them.
+    ``scale`` multiplies the reward the agent sees (``dqn.reward_scale``); the discriminator is
+    untouched.
     """
 
-    def __init__(self, reward: DrSReward, obs_coords: str | None = None):
+    def __init__(self, reward: DrSReward, obs_coords: str | None = None, scale: float = 1.0):
         super().__init__()  # it only rewrites the reward entry, whose spec the env already has
         self.drs = reward
         self.obs_coords = obs_coords
         self.reward_coords = reward_coords(reward)
+        self.scale = float(scale)
 
     def _reward(self, root: TensorDictBase, nxt: TensorDictBase) -> torch.Tensor:
         sa = TensorDict({k: root.get(k) for k in self.drs.reward_in_keys}, batch_size=root.batch_size)
         if self.obs_coords is not None and self.obs_coords != self.reward_coords:
             sa.set("observation", convert_observation(sa.get("observation"), self.obs_coords, self.reward_coords))
         sa.set(self.drs.stage_key, nxt.get(self.drs.stage_key))
-        return self.drs.reward(sa)
+        r = self.drs.reward(sa)
+        return r * self.scale if self.scale != 1.0 else r
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         tensordict.set(("next", self.drs.reward_key), self._reward(tensordict, tensordict.get("next")))
@@ -274,9 +278,10 @@ def plot_reward_map(reward: DrSReward, path: str | os.PathLike, goal: tuple[int,
 
 # ----------------------------------------------------------------------------- building blocks
 def make_env(map_name: str, num_envs: int, max_steps: int, seed: int, reward_name: str, coords: str = "onehot",
-             drs: DrSReward | None = None, dense_coef: float = 1.0) -> TransformedEnv:
+             drs: DrSReward | None = None, dense_coef: float = 1.0, reward_scale: float = 1.0) -> TransformedEnv:
     """The maze with its stage label; ``semi_sparse`` writes ``k - 1`` as the env reward, ``dense``
-    the env's distance-shaped reward (``dense_coef``), and a given DrS reward writes ``R(s, a)``."""
+    the env's distance-shaped reward (``dense_coef``), and a given DrS reward writes ``R(s, a)``.
+    ``reward_scale`` != 1 appends TorchRL's ``RewardScaling`` (the reward the agent trains on)."""
     env = TransformedEnv(
         ThreeRoomMaze(map_name, num_envs=num_envs, max_steps=max_steps, seed=seed, coords=coords,
                       dense_coef=dense_coef if reward_name == "dense" else 0.0),
@@ -284,6 +289,8 @@ def make_env(map_name: str, num_envs: int, max_steps: int, seed: int, reward_nam
     )
     if drs is not None:
         env.append_transform(StateActionReward(drs, coords))
+    if reward_scale != 1.0:
+        env.append_transform(RewardScaling(loc=0.0, scale=float(reward_scale)))
     return env
 
 
@@ -346,6 +353,7 @@ def validate(cfg: DictConfig) -> None:
         (cfg.dqn.utd > 0 and cfg.dqn.batch_size > 0, "dqn.utd and dqn.batch_size must be > 0"),
         (0 < cfg.dqn.gamma <= 1, "dqn.gamma must be in (0, 1]"),
         (cfg.dqn.n_steps >= 1, "dqn.n_steps must be >= 1"),
+        (cfg.dqn.get("reward_scale", 1.0) > 0, "dqn.reward_scale must be > 0 (it multiplies the reward the agent trains on)"),
         (cfg.eval.interval > 0 and cfg.eval.episodes > 0, "eval.interval and eval.episodes must be > 0"),
         (cfg.demos >= 0, "demos must be >= 0"),
         (cfg.coords in OBS_DIMS, f"coords must be one of {sorted(OBS_DIMS)}, got {cfg.coords!r}"),
@@ -407,7 +415,8 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
     # (Algorithm 1). n-step TD: rewards are summed when the transitions are stored, so the env
     # writes R(s, a) with the discriminator of the moment (see the module docstring).
     env_drs = drs if (drs is not None and n_steps > 1) else None
-    env = make_env(map_name, cfg.num_envs, cfg.max_steps, cfg.seed, rname, cfg.coords, env_drs, float(cfg.reward.dense_coef))
+    scale = float(d.get("reward_scale", 1.0))
+    env = make_env(map_name, cfg.num_envs, cfg.max_steps, cfg.seed, rname, cfg.coords, env_drs, float(cfg.reward.dense_coef), scale)
     eval_env = make_env(map_name, cfg.eval.episodes, cfg.max_steps, cfg.seed + 10_000, rname, cfg.coords)
     actor = make_qnet(cfg, env.action_spec)
     explore = EGreedyModule(env.action_spec, eps_init=d.eps_init, eps_end=d.eps_end,
@@ -418,7 +427,7 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
                           transform=MultiStepTransform(n_steps, float(d.gamma)))
     else:
         rb = ReplayBuffer(storage=LazyTensorStorage(int(d.buffer_size)), batch_size=int(d.batch_size),
-                          transform=StateActionReward(drs, cfg.coords) if drs is not None else None)
+                          transform=StateActionReward(drs, cfg.coords, scale) if drs is not None else None)
 
     loss = DQNLoss(actor, action_space=env.action_spec, delay_value=True, double_dqn=bool(d.double_dqn), loss_function=d.loss_function)
     loss.make_value_estimator(ValueEstimators.TD0, gamma=float(d.gamma))
