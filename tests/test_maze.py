@@ -277,6 +277,18 @@ def test_drs_maze_learn_then_reuse_then_report(tmp_path):
     table = (tmp_path / "results" / "table.md").read_text()
     assert "| reuse | test | sparse |" in table and "| learn | train | drs |" in table
 
+    # a scaled reward is its own group, and a report can gather several folders
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base=None):
+        s = train(compose("maze", overrides=["phase=reuse", "reward.name=sparse", "dqn.reward_scale=0.5", *TINY]),
+                  tmp_path / "study2" / "reuse-sparse-s0")
+    assert s["reward_scale"] == 0.5
+    out = report([tmp_path / "study", tmp_path / "study2"], tmp_path / "results2")
+    assert out["runs"] == 4
+    curves = list(csv.DictReader((tmp_path / "results2" / "curves.csv").read_text().splitlines()))
+    assert {r["reward"] for r in curves if r["phase"] == "reuse"} == {"drs", "sparse", "sparse x0.5"}
+    with pytest.raises(MazeConfigError, match="no runs"):
+        report(tmp_path / "nothing-here", tmp_path / "results3")
+
 
 def test_observation_matches_the_grid_for_every_cell():
     grid = make_grid("test")

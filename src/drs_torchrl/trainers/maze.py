@@ -50,7 +50,7 @@ import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, ListConfig, OmegaConf
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictSequential
 from torchrl.collectors import Collector
@@ -516,7 +516,7 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
 
     wall = time.perf_counter() - t0
     summary = {
-        "phase": cfg.phase, "map": map_name, "reward": rname, "seed": int(cfg.seed), "frames": frames, "updates": updates,
+        "phase": cfg.phase, "map": map_name, "reward": rname, "reward_scale": scale, "seed": int(cfg.seed), "frames": frames, "updates": updates,
         "wall_time_s": round(wall, 1), "cpu_time_s": round(time.process_time() - cpu0, 1), "env_steps_per_s": round(frames / wall, 1),
         "final_eval_success": rows[-1]["eval_success"], "final_eval_length": rows[-1]["eval_length"],
         "mean_eval_success_last3": float(np.mean([r["eval_success"] for r in rows[-3:]])),
@@ -550,34 +550,44 @@ class _Window:
 
 
 # ----------------------------------------------------------------------------- report
-def report(root: str | os.PathLike, out: str | os.PathLike) -> dict:
-    """Gather ``summary.json`` / ``train.csv`` of every run under ``root`` into ``out``:
-    ``curves.csv`` (every eval row of every run), ``curves.png`` (mean and std over seeds of the
-    eval success rate against env steps) and ``table.md`` (final success rates per seed)."""
+def reward_label(summary: dict) -> str:
+    """The reward's name in reports, with its ``dqn.reward_scale`` when that is not 1."""
+    scale = float(summary.get("reward_scale", 1.0))
+    return summary["reward"] if scale == 1.0 else f"{summary['reward']} x{scale:g}"
+
+
+def report(root, out: str | os.PathLike) -> dict:
+    """Gather ``summary.json`` / ``train.csv`` of every run under ``root`` (a folder, or a list of
+    folders) into ``out``: ``curves.csv`` (every eval row of every run), ``curves.png`` (mean and
+    std over seeds of the eval success rate against env steps) and ``table.md`` (final success
+    rates per seed). Runs are grouped by phase and reward (with its scale, :func:`reward_label`)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    root, out = Path(root), Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    roots = [Path(r) for r in (root if isinstance(root, (list, tuple, ListConfig)) else [root])]
+    out = Path(out)
     runs = []
-    for s in sorted(root.rglob("summary.json")):
+    for s in sorted(p for r in roots for p in r.rglob("summary.json")):
         summ = json.loads(s.read_text())
+        if "reward_scale" not in summ and (s.parent / "config.yaml").exists():  # runs written before the field existed
+            summ["reward_scale"] = float(OmegaConf.load(s.parent / "config.yaml").dqn.get("reward_scale", 1.0))
         with open(s.parent / "train.csv") as f:
             rows = list(csv.DictReader(f))
         runs.append((summ, rows, s.parent))
     if not runs:
-        raise MazeConfigError(f"no runs (summary.json) under {root}")
+        raise MazeConfigError(f"no runs (summary.json) under {', '.join(map(str, roots))}")
+    out.mkdir(parents=True, exist_ok=True)
     with open(out / "curves.csv", "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["phase", "map", "reward", "seed", "frames", "eval_success", "eval_length", "train_success"])
         for summ, rows, _ in runs:
             for r in rows:
-                w.writerow([summ["phase"], summ["map"], summ["reward"], summ["seed"], r["frames"], r["eval_success"], r["eval_length"], r["train_success"]])
+                w.writerow([summ["phase"], summ["map"], reward_label(summ), summ["seed"], r["frames"], r["eval_success"], r["eval_length"], r["train_success"]])
     groups: dict[tuple[str, str], list] = {}
     for summ, rows, d in runs:
-        groups.setdefault((summ["phase"], summ["reward"]), []).append((summ, rows, d))
+        groups.setdefault((summ["phase"], reward_label(summ)), []).append((summ, rows, d))
     panels = [("learn", "phase 1: DrS reward learning (train map)"), ("reuse", "phase 2: fresh DQN on the test map")]
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
     table = ["| phase | map | reward | seeds | env steps | eval success at the end (per seed) | mean +- std | mean over the last 3 evals | wall time per run (s) |",
@@ -610,7 +620,7 @@ def report(root: str | os.PathLike, out: str | os.PathLike) -> dict:
     for summ, _, _ in runs:
         if summ["phase"] == "learn" and "reward_diagnostics" in summ:
             for m, v in summ["reward_diagnostics"].items():
-                diag.append(f"| {summ['seed']} | {m} | {v['optimal_action_rate']:.2f} | {v['greedy_success']:.2f} |")
+                diag.append(f"| {reward_label(summ)} {summ['seed']} | {m} | {v['optimal_action_rate']:.2f} | {v['greedy_success']:.2f} |")
     (out / "table.md").write_text("\n".join(table + diag) + "\n")
     return {"runs": len(runs), "out": str(out)}
 
