@@ -38,6 +38,7 @@ from drs_torchrl.trainers.maze import (
     make_env,
     report,
     reward_diagnostics,
+    reward_label,
     train,
     validate,
 )
@@ -286,6 +287,7 @@ def test_drs_maze_learn_then_reuse_then_report(tmp_path):
     assert out["runs"] == 4
     curves = list(csv.DictReader((tmp_path / "results2" / "curves.csv").read_text().splitlines()))
     assert {r["reward"] for r in curves if r["phase"] == "reuse"} == {"drs", "sparse", "sparse x0.5"}
+    assert reward_label({"reward": "drs", "reward_coords": "patch", "reward_scale": 0.1}) == "drs[patch] x0.1"
     with pytest.raises(MazeConfigError, match="no runs"):
         report(tmp_path / "nothing-here", tmp_path / "results3")
 
@@ -370,7 +372,7 @@ def test_a_patch_only_reward_learns_and_is_reused(tmp_path):
         assert reward.in_shapes["observation"] == OBS_DIMS["patch"]
         s = train(compose("maze", overrides=["phase=reuse", f"reward.checkpoint={tmp_path / 'learn' / 'reward.pt'}", *TINY]),
                   tmp_path / "reuse")
-        assert s["map"] == "test" and s["frames"] == 1024
+        assert s["map"] == "test" and s["frames"] == 1024 and s["reward_coords"] == "patch"
     # same patch and action, anywhere on either map: the same reward
     grid = make_grid("train")
     cells, goals = torch.tensor([[13, 5], [8, 9]]), torch.tensor([[2, 8], [3, 1]])  # both open all round

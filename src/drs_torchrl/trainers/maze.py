@@ -516,7 +516,8 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
 
     wall = time.perf_counter() - t0
     summary = {
-        "phase": cfg.phase, "map": map_name, "reward": rname, "reward_scale": scale, "seed": int(cfg.seed), "frames": frames, "updates": updates,
+        "phase": cfg.phase, "map": map_name, "reward": rname, "reward_scale": scale, "seed": int(cfg.seed),
+        "reward_coords": reward_coords(drs) if (drs is not None and reward_coords(drs) != cfg.coords) else None, "frames": frames, "updates": updates,
         "wall_time_s": round(wall, 1), "cpu_time_s": round(time.process_time() - cpu0, 1), "env_steps_per_s": round(frames / wall, 1),
         "final_eval_success": rows[-1]["eval_success"], "final_eval_length": rows[-1]["eval_length"],
         "mean_eval_success_last3": float(np.mean([r["eval_success"] for r in rows[-3:]])),
@@ -551,9 +552,13 @@ class _Window:
 
 # ----------------------------------------------------------------------------- report
 def reward_label(summary: dict) -> str:
-    """The reward's name in reports, with its ``dqn.reward_scale`` when that is not 1."""
+    """The reward's name in reports, with what the learned reward reads when that is not the agent's
+    observation (``reward.coords``, e.g. ``drs[patch]``) and ``dqn.reward_scale`` when it is not 1."""
+    name = summary["reward"]
+    if name == "drs" and summary.get("reward_coords"):
+        name = f"drs[{summary['reward_coords']}]"
     scale = float(summary.get("reward_scale", 1.0))
-    return summary["reward"] if scale == 1.0 else f"{summary['reward']} x{scale:g}"
+    return name if scale == 1.0 else f"{name} x{scale:g}"
 
 
 def report(root, out: str | os.PathLike) -> dict:
@@ -571,8 +576,10 @@ def report(root, out: str | os.PathLike) -> dict:
     runs = []
     for s in sorted(p for r in roots for p in r.rglob("summary.json")):
         summ = json.loads(s.read_text())
-        if "reward_scale" not in summ and (s.parent / "config.yaml").exists():  # runs written before the field existed
-            summ["reward_scale"] = float(OmegaConf.load(s.parent / "config.yaml").dqn.get("reward_scale", 1.0))
+        if "reward_scale" not in summ and (s.parent / "config.yaml").exists():  # runs written before the fields existed
+            c = OmegaConf.load(s.parent / "config.yaml")
+            summ["reward_scale"] = float(c.dqn.get("reward_scale", 1.0))
+            summ["reward_coords"] = c.reward.get("coords")
         with open(s.parent / "train.csv") as f:
             rows = list(csv.DictReader(f))
         runs.append((summ, rows, s.parent))
