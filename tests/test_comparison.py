@@ -63,6 +63,16 @@ def test_groups_by_reward_and_averages_over_seeds(tmp_path):
     assert "| 2000 |" in drs_line and "3 (0, 1, 2)" in drs_line
 
 
+def test_a_step_logged_twice_counts_once(tmp_path):
+    a = make_run(tmp_path, "a", "drs", 0, [0.0, 0.4], [0.0, 0.4])
+    with (a / "eval.csv").open("a", newline="") as f:  # a resumed run repeats its last step
+        csv.writer(f).writerow([2000, 10, 0.6, 0.6, 0.6])
+    b = make_run(tmp_path, "b", "drs", 1, [0.0, 0.2], [0.0, 0.2])
+    rows = [r for r in rows_of(compare([a, b], tmp_path / "out")["csv"]) if r["source"] == "eval" and r["metric"] == "success_rate"]
+    assert [(int(r["step"]), int(r["n"])) for r in rows] == [(1000, 2), (2000, 2)]
+    np.testing.assert_allclose(float(rows[1]["mean"]), 0.4)  # (0.6 + 0.2) / 2: the later row of a
+
+
 def test_group_by_several_keys(tmp_path):
     a = make_run(tmp_path, "a", "drs", 0, [0.1], [0.1])
     b = make_run(tmp_path, "b", "drs", 1, [0.3], [0.3])

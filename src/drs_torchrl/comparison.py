@@ -91,7 +91,9 @@ def aggregate(frames: list, column: str) -> "object":
     """
     import pandas as pd
 
-    parts = [f[["step", column]].dropna().set_index("step")[column] for f in frames if f is not None and column in f]
+    # a resumed run may log a step twice (the row before the interruption and after): keep the later one
+    parts = [f[["step", column]].dropna().drop_duplicates("step", keep="last").set_index("step")[column]
+             for f in frames if f is not None and column in f]
     if not parts:
         return pd.DataFrame(columns=["step", "n", "mean", "std"])
     wide = pd.concat(parts, axis=1)
