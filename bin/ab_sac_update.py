@@ -1,13 +1,15 @@
 #!/usr/bin/env python
-"""A/B timing of one SAC update (``Trainer._sac_step``) in one process, variants alternated in
-40-update blocks so that load changes hit them alike. Produced the vmap / Adam / OMP figures in
-``results/README.md`` ("Speed"):
+"""A/B timing of the learner's update (one discriminator step + one SAC step, as the loop does them)
+in one process, variants alternated in blocks so that load changes hit them alike. Each variant is
+a set of config overrides on a phase-1 PickCube trainer holding 1024 real transitions.
 
-    .venv/bin/python bin/ab_sac_update.py --threads 2 --compare vmap       # deactivate_vmap on/off
+    .venv/bin/python bin/ab_sac_update.py --threads 2 --compare levers     # the issue-12 levers
+    .venv/bin/python bin/ab_sac_update.py --threads 1 --compare vmap       # deactivate_vmap on/off
     .venv/bin/python bin/ab_sac_update.py --threads 1 --compare adam       # for-loop / foreach / fused Adam
-    OMP_WAIT_POLICY=PASSIVE .venv/bin/python bin/ab_sac_update.py --threads 2 --compare vmap
+    .venv/bin/python bin/ab_sac_update.py --algo sac_paper --compare precision
 """
 import argparse
+import json
 import tempfile
 import time
 
@@ -17,49 +19,65 @@ from hydra import compose, initialize_config_dir
 from drs_torchrl.trainers.apps import conf_dir
 from drs_torchrl.trainers.loop import Trainer
 
+UNFUSED = ["algo.optim.fused=false", "reward.disc.fused=false"]
+COMPARISONS = {
+    "levers": {
+        "fp32, per-parameter Adam (before)": [*UNFUSED],
+        "fp32, fused Adam (default)": [],
+        "fp32, fused Adam, no vmap": ["+algo.loss.deactivate_vmap=true"],
+        "fp32, fused Adam, compiled loss": ["algo.compile=true"],
+        "bf16 autocast, fused Adam": ["algo.precision=bf16"],
+    },
+    "precision": {"fp32": ["algo.precision=fp32"], "bf16": ["algo.precision=bf16"]},
+    "vmap": {"vmap": [], "novmap": ["+algo.loss.deactivate_vmap=true"]},
+    "adam": {"loop": [*UNFUSED, "+algo.optim.foreach=false"], "foreach": [*UNFUSED, "+algo.optim.foreach=true"], "fused": []},
+}
 
-def trainer(extra):
+
+def trainer(algo, extra):
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
-        cfg = compose("learn", overrides=["algo=sac_cpu", "total_frames=1024", "algo.learning_starts=100000", "eval.episodes=0",
+        cfg = compose("learn", overrides=[f"algo={algo}", "total_frames=1024", "algo.learning_starts=100000", "eval.episodes=0",
                                           "logger.progress_bar=false", "logger.tensorboard=false",
+                                          "+env.variant_overrides.goal_thresh=0.08",  # every discriminator has data
                                           "checkpoint_interval=1000000000", *extra])
     d = tempfile.mkdtemp()
     Trainer(cfg, "learn", d).run()  # 1024 real PickCube transitions
     return Trainer(cfg, "learn", d, resume=True)
 
 
-def with_adam(tr, kind):
-    kw = {"fused": {"fused": True}, "foreach": {"foreach": True}, "loop": {"foreach": False}}[kind]
-    tr.optim_actor = torch.optim.Adam(list(tr.loss.actor_network_params.values(True, True)), lr=3e-4, **kw)
-    tr.optim_critic = torch.optim.Adam(list(tr.loss.qvalue_network_params.values(True, True)), lr=3e-4, **kw)
-    tr.optim_alpha = torch.optim.Adam([tr.loss.log_alpha], lr=3e-4, **kw)
-    return tr
+def update(tr):
+    tr._disc_step()
+    tr._sac_step()
 
 
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--threads", type=int, default=1)
-    p.add_argument("--compare", choices=["vmap", "adam"], default="vmap")
+    p.add_argument("--algo", default="sac_cpu")
+    p.add_argument("--compare", choices=sorted(COMPARISONS), default="levers")
     p.add_argument("--reps", type=int, default=4)
+    p.add_argument("--block", type=int, default=30)
+    p.add_argument("--json", help="also write the results here")
     a = p.parse_args()
-    if a.compare == "vmap":
-        variants = {"vmap": trainer([]), "novmap": trainer(["+algo.loss.deactivate_vmap=true"])}
-    else:
-        base = trainer([])
-        variants = {k: (lambda k=k: with_adam(base, k)) for k in ("loop", "foreach", "fused")}
+    variants = {k: trainer(a.algo, v) for k, v in COMPARISONS[a.compare].items()}
     torch.set_num_threads(a.threads)
     res = {k: [] for k in variants}
+    for tr in variants.values():
+        for _ in range(5):  # warm-up (and compilation)
+            update(tr)
     for _ in range(a.reps):
-        for k, v in variants.items():
-            tr = v() if callable(v) else v
-            for _ in range(3):
-                tr._sac_step()
+        for k, tr in variants.items():
             t = time.perf_counter()
-            for _ in range(40):
-                tr._sac_step()
-            res[k].append((time.perf_counter() - t) / 40 * 1e3)
+            for _ in range(a.block):
+                update(tr)
+            res[k].append((time.perf_counter() - t) / a.block * 1e3)
+    out = []
     for k, v in res.items():
-        print(f"{k}: ms per update {['%.1f' % x for x in v]}, min {min(v):.1f}")
+        out.append({"variant": k, "overrides": COMPARISONS[a.compare][k], "ms_per_update_blocks": v, "ms_per_update_min": min(v)})
+        print(f"{a.algo} threads={a.threads} {k}: ms per update (disc + SAC) {['%.1f' % x for x in v]}, min {min(v):.1f}", flush=True)
+    if a.json:
+        with open(a.json, "w") as f:
+            json.dump({"algo": a.algo, "threads": a.threads, "compare": a.compare, "results": out}, f, indent=2)
 
 
 if __name__ == "__main__":

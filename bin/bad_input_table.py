@@ -80,6 +80,16 @@ def main() -> int:
         ("resume of a directory that is not a run", ["drs-learn", f"resume={work / 'nowhere'}"], {}),
         ("resume switching a config group", ["drs-learn", f"resume={good_run}", "algo=sac_paper"], {}),
         ("resume with drs-reuse of a drs-learn run", ["drs-reuse", f"resume={good_run}"], {}),
+        ("a value of the wrong type", [*L, "total_frames=abc"], {}),
+        ("a new run in a directory that holds one (no resume=)", [*L, f"hydra.run.dir={good_run}"], {}),
+        ("an unknown learner precision", [*L, "algo.precision=fp8"], {}),
+        ("fp16 learner on a CPU", [*L, "algo.precision=fp16"], {}),
+        ("config-defined family with a stage key the env does not report",
+         [*L, "env=custom", "env.family=mine", "env.env_id=PushCube-v1", "env.stage_keys=[is_grasped,success]"], {}),
+        ("config-defined family named like a built-in one", [*L, "env=custom", "env.family=pick_cube"], {}),
+        ("drs-eval of a directory that is not a run", ["drs-eval", str(work / "nowhere")], {}),
+        ("drs-eval on an unknown variant", ["drs-eval", str(good_run), "--split", "cube_9cm"], {}),
+        ("drs-study with a malformed study file", ["drs-study", str(work / "other_family.pt")], {}),
     ]
     rows = []
     for name, cmd, extra_env in cases:
@@ -88,7 +98,7 @@ def main() -> int:
         d.mkdir()
         exe = cmd[0] if cmd[0].startswith("/") else str(BIN / cmd[0])
         args = list(cmd[1:])
-        if cmd[0].startswith("drs-") and not any(a.startswith("resume=") for a in args):
+        if cmd[0] in ("drs-learn", "drs-reuse") and not any(a.startswith(("resume=", "hydra.run.dir=")) for a in args):
             args.append(f"hydra.run.dir={d / 'run'}")
         env = dict(os.environ, PYTHONWARNINGS="ignore", **extra_env)
         p = subprocess.run([exe, *args], cwd=d, env=env, capture_output=True, text=True, timeout=600)

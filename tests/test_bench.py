@@ -27,3 +27,10 @@ def test_roofline_bound_is_the_core_time_formula():
     res["learn"] = []
     res["components"] = []
     assert "env steps/s bound" in render_markdown(res)
+    # a bracketed plain-loop measurement shows both halves; a bf16 component gets its own roofline row
+    res["plain"] = [{"batch_size": 256, "env_steps_per_s": 100.0, "updates_per_s_overall": 50.0, "before": 90.0, "after": 110.0}]
+    assert "100.0 (before 90.0, after 110.0)" in render_markdown(res)
+    comp = {"algo": "sac_cpu", "batch_size": 256, "width": 256, "sac_update_gflop": 1.6, "sac_update_ms": 15.0,
+            "sac_update_ms_by_precision": {"fp32": 15.0, "bf16": 12.0}}
+    rows = roofline({**res, "components": [comp], "learn": [{"algo": "sac_cpu", "utd": 0.5}]})
+    assert [r["precision"] for r in rows] == ["fp32", "bf16"] and rows[1]["update_ms_measured"] == 12.0

@@ -8,7 +8,9 @@ Measures, on the same task and machine:
   * ``learn_<algo>``: phase 1 (SAC + discriminators, UTD of the config) after learning starts,
     env steps/s and gradient updates/s, for each algo config given;
   * ``plain``: the same algorithm as a plain single-file PyTorch loop (``drs_torchrl.plain_loop``)
-    at each config's batch size, side by side, and the pipeline's speed ratio over it;
+    at each config's batch size, measured right before and right after that config's pipeline rows
+    (this machine's speed drifts within a run), and the pipeline's speed ratio over their mean;
+  * ``--precisions fp32 bf16``: each pipeline row in each learner precision (``algo.precision``);
   * ``roofline``: the matrix-product FLOPs of one SAC update (counted by the profiler) against this
     machine's measured GEMM rate at the update's shapes, which bounds phase-1 env steps/s for *any*
     implementation of the algorithm on this machine (see :func:`roofline`).
@@ -29,6 +31,7 @@ import time
 from pathlib import Path
 
 import torch
+import yaml
 
 
 def bench_raw_sim(env_id: str, steps: int, env_kwargs: dict, control_mode: str) -> float:
@@ -89,7 +92,7 @@ def bench_collect(family, steps: int, collector: str = "inproc") -> float:
     return n / dt
 
 
-def bench_components(algo: str, sizes: list[int], batch_reps: int = 50) -> dict:
+def bench_components(algo: str, sizes: list[int], batch_reps: int = 50, precisions: tuple[str, ...] = ("fp32",)) -> dict:
     """Per-call times of the learner's parts on real PickCube data (phase 1, ``algo``):
 
     * ``sac_update_ms``: one SAC update (replay sample, reward recomputation, SACLoss, backward,
@@ -102,6 +105,7 @@ def bench_components(algo: str, sizes: list[int], batch_reps: int = 50) -> dict:
     import tempfile
 
     from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
     from tensordict import TensorDict
 
     from drs_torchrl.trainers.apps import conf_dir
@@ -126,6 +130,7 @@ def bench_components(algo: str, sizes: list[int], batch_reps: int = 50) -> dict:
         tr.run()  # 2048 real transitions in the replay and stage buffers
         tr = Trainer(cfg, "learn", d, resume=True)
         out["sac_update_ms"] = per_call_ms(tr._sac_step)
+        out["sac_update_ms_by_precision"] = {"fp32": out["sac_update_ms"]}
         out["sac_update_gflop"] = sac_update_gflop(tr)
         sample = tr.replay.sample()
         nxt = sample.get("next")
@@ -147,6 +152,15 @@ def bench_components(algo: str, sizes: list[int], batch_reps: int = 50) -> dict:
             sweep.append({"transitions": n, "sample_ms": ms, "file_episode_and_sample_ms": file_ms})
         out["stage_sample"] = sweep
         tr.close()
+    for prec in precisions:  # a trainer of its own: the loss is built for its precision (no vmap under autocast)
+        if prec == "fp32":
+            continue
+        pcfg = OmegaConf.merge(cfg, {"algo": {"precision": prec}})
+        with tempfile.TemporaryDirectory() as d:
+            Trainer(pcfg, "learn", d).run()
+            tr = Trainer(pcfg, "learn", d, resume=True)
+            out["sac_update_ms_by_precision"][prec] = per_call_ms(tr._sac_step)
+            tr.close()
     cfg.algo.compile = True
     with tempfile.TemporaryDirectory() as d:
         try:
@@ -177,14 +191,14 @@ def sac_update_gflop(trainer) -> float:
     return sum(e.flops for e in prof.key_averages()) / 1e9
 
 
-def gemm_gflops(batch: int, width: int, threads: int, reps: int = 400) -> float:
-    """Measured fp32 GEMM rate (GFLOP/s) of ``(batch, width) @ (width, width)``, the shape of the
-    update's hidden layers, with ``threads`` torch threads: the best this machine does at that shape."""
+def gemm_gflops(batch: int, width: int, threads: int, reps: int = 400, dtype: torch.dtype = torch.float32) -> float:
+    """Measured GEMM rate (GFLOP/s) of ``(batch, width) @ (width, width)`` in ``dtype``, the shape of
+    the update's hidden layers, with ``threads`` torch threads: the best this machine does at that shape."""
     old = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:
-        x, w = torch.randn(batch, width), torch.randn(width, width)
-        out = torch.empty(batch, width)
+        x, w = torch.randn(batch, width, dtype=dtype), torch.randn(width, width, dtype=dtype)
+        out = torch.empty(batch, width, dtype=dtype)
         for _ in range(20):
             torch.mm(x, w, out=out)
         best = float("inf")
@@ -210,22 +224,24 @@ def roofline(res: dict) -> list[dict]:
     cores = os.cpu_count() or 1
     raw = res["raw_sim_steps_per_s"]
     plain = {q["batch_size"]: q["env_steps_per_s"] for q in res.get("plain", [])}
+    dtypes = {"fp32": torch.float32, "bf16": torch.bfloat16}
     out = []
     for c in res.get("components", []):
         bs, width = c["batch_size"], c.get("width", 256)
         utd = next((r["utd"] for r in res["learn"] if r["algo"] == c["algo"]), 0.5)
-        g1 = gemm_gflops(bs, width, 1)
-        gall = gemm_gflops(bs, width, cores)
-        core_s = utd * c["sac_update_gflop"] / g1 + 1.0 / raw
-        bound = cores / core_s
-        row = {"algo": c["algo"], "batch_size": bs, "utd": utd, "gflop_per_update": c["sac_update_gflop"],
-               "gemm_gflops_1_thread": g1, f"gemm_gflops_{cores}_threads": gall, "cores": cores,
-               "update_ms_lower_bound_all_cores": c["sac_update_gflop"] / gall * 1e3,
-               "update_ms_measured": c["sac_update_ms"], "env_steps_per_s_bound": bound}
-        if bs in plain:
-            row["plain_env_steps_per_s"] = plain[bs]
-            row["bound_over_plain"] = bound / plain[bs]
-        out.append(row)
+        for prec, measured in (c.get("sac_update_ms_by_precision") or {"fp32": c["sac_update_ms"]}).items():
+            g1 = gemm_gflops(bs, width, 1, dtype=dtypes[prec])
+            gall = gemm_gflops(bs, width, cores, dtype=dtypes[prec])
+            core_s = utd * c["sac_update_gflop"] / g1 + 1.0 / raw
+            bound = cores / core_s
+            row = {"algo": c["algo"], "precision": prec, "batch_size": bs, "utd": utd, "gflop_per_update": c["sac_update_gflop"],
+                   "gemm_gflops_1_thread": g1, f"gemm_gflops_{cores}_threads": gall, "cores": cores,
+                   "update_ms_lower_bound_all_cores": c["sac_update_gflop"] / gall * 1e3,
+                   "update_ms_measured": measured, "env_steps_per_s_bound": bound}
+            if bs in plain:
+                row["plain_env_steps_per_s"] = plain[bs]
+                row["bound_over_plain"] = bound / plain[bs]
+            out.append(row)
     return out
 
 
@@ -233,7 +249,7 @@ COLLECTORS = {"inproc": "torchrl.collectors.Collector", "background": "torchrl.c
               "background2": "torchrl.collectors.MultiAsyncCollector"}
 
 
-def bench_learn(algo: str, frames: int, overrides: list[str], collector: str = "inproc") -> dict:
+def bench_learn(algo: str, frames: int, overrides: list[str], collector: str = "inproc", precision: str = "fp32") -> dict:
     """Phase-1 speed after learning starts: env steps/s and updates/s over ``frames`` steps, with the
     collector in this process (``inproc``) or in background processes (``background``, ``background2``);
     ``<collector>:T`` sets the learner's torch threads to ``T``."""
@@ -249,7 +265,8 @@ def bench_learn(algo: str, frames: int, overrides: list[str], collector: str = "
         extra = ["+algo.collector.num_workers=2"] if kind == "background2" else []
         if threads:
             extra.append(f"+algo.collector.num_threads={int(threads)}" if kind != "inproc" else f"torch_threads={int(threads)}")
-        cfg = compose("learn", overrides=[f"algo={algo}", f"algo.collector._target_={COLLECTORS[kind]}", *extra, *overrides])
+        cfg = compose("learn", overrides=[f"algo={algo}", f"algo.collector._target_={COLLECTORS[kind]}", f"algo.precision={precision}",
+                                          *extra, *overrides])
     start = int(cfg.algo.learning_starts)
     cfg.total_frames = start + frames
     cfg.eval.interval = 10**9
@@ -270,6 +287,7 @@ def bench_learn(algo: str, frames: int, overrides: list[str], collector: str = "
     return {
         "algo": algo,
         "collector": collector,
+        "precision": precision,
         "frac_time_updating": float(r["frac_time_updating"]),
         "batch_size": int(cfg.algo.batch_size),
         "utd": float(cfg.algo.utd),
@@ -328,6 +346,8 @@ def bench_checkpoint(transitions: int) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from drs_torchrl.trainers.apps import conf_dir
+
     p = argparse.ArgumentParser(prog="drs-bench", description=__doc__.split("\n")[0])
     p.add_argument("--family", default="pick_cube")
     p.add_argument("--raw-steps", type=int, default=3000)
@@ -340,6 +360,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="collectors for the phase-1 measurements: inproc, background, background2 (two workers), "
                         "optionally with ':T' for T learner torch threads (default: a background collector leaves "
                         "the learner cpu_count - workers threads)")
+    p.add_argument("--precisions", nargs="*", default=["fp32", "bf16"], choices=["fp32", "bf16"],
+                   help="learner precisions of the phase-1 measurements (algo.precision); the plain loop is fp32")
     p.add_argument("--stage-sizes", nargs="*", type=int, default=[1_000, 10_000, 100_000, 1_000_000],
                    help="stage-buffer sizes for the sampling-time sweep (empty: skip the component timings)")
     p.add_argument("--out", default="results/bench")
@@ -368,30 +390,46 @@ def main(argv: list[str] | None = None) -> int:
         torch.set_num_threads(threads)  # a background collector lowers this process's threads while it runs
         print(f"  {res['collect'][c]:.0f} steps/s ({res['collect'][c] / res['raw_sim_steps_per_s']:.2f}x raw)", flush=True)
     res["learn"] = []
-    for algo in a.algos:
-        for c in a.collectors:
-            print(f"phase 1, {algo}, {c} collector ...", flush=True)
-            r = bench_learn(algo, a.learn_frames, [f"env={a.family}"], collector=c)
-            torch.set_num_threads(threads)
-            res["learn"].append(r)
-            print(f"  {r['env_steps_per_s']:.1f} env steps/s, {r['updates_per_s']:.1f} updates/s", flush=True)
     res["plain"] = []
-    if not a.no_plain:
-        from drs_torchrl.plain_loop import run_plain_drs
+    from drs_torchrl.plain_loop import run_plain_drs
+    from drs_torchrl.precision import native_bf16
 
-        for bs in dict.fromkeys(r["batch_size"] for r in res["learn"]):
-            print(f"plain single-file loop, batch {bs} ...", flush=True)
-            q = run_plain_drs(fam.env_id, kw, fam.stage_keys, bs, a.learn_frames)
-            for r in res["learn"]:
-                if r["batch_size"] == bs:
-                    r["over_plain"] = r["env_steps_per_s"] / q["env_steps_per_s"]
+    res["machine"]["native_bf16"] = native_bf16("cpu")
+
+    def plain(bs: int) -> dict:
+        print(f"plain single-file loop, batch {bs} ...", flush=True)
+        q = run_plain_drs(fam.env_id, kw, fam.stage_keys, bs, a.learn_frames)
+        torch.set_num_threads(threads)
+        print(f"  {q['env_steps_per_s']:.1f} env steps/s", flush=True)
+        return q
+
+    for algo in a.algos:
+        # the plain loop is measured right before and right after this config's pipeline rows: this
+        # machine's speed drifts within a run, and the ratio is taken over the mean of the two
+        bs = int(yaml.safe_load((Path(conf_dir()) / "algo" / f"{algo}.yaml").read_text())["batch_size"])
+        before = None if a.no_plain else plain(bs)
+        rows = []
+        for c in a.collectors:
+            for prec in a.precisions:
+                print(f"phase 1, {algo}, {c} collector, {prec} ...", flush=True)
+                r = bench_learn(algo, a.learn_frames, [f"env={a.family}"], collector=c, precision=prec)
+                torch.set_num_threads(threads)
+                rows.append(r)
+                print(f"  {r['env_steps_per_s']:.1f} env steps/s, {r['updates_per_s']:.1f} updates/s", flush=True)
+        res["learn"] += rows
+        if before is not None:
+            after = plain(bs)
+            q = {"batch_size": bs, "env_steps_per_s": (before["env_steps_per_s"] + after["env_steps_per_s"]) / 2,
+                 "updates_per_s_overall": (before["updates_per_s_overall"] + after["updates_per_s_overall"]) / 2,
+                 "before": before["env_steps_per_s"], "after": after["env_steps_per_s"]}
+            for r in rows:
+                r["over_plain"] = r["env_steps_per_s"] / q["env_steps_per_s"]
             res["plain"].append(q)
-            print(f"  {q['env_steps_per_s']:.1f} env steps/s", flush=True)
     res["components"] = []
     if a.stage_sizes:
         for algo in a.algos:
             print(f"component timings, {algo} ...", flush=True)
-            res["components"].append(bench_components(algo, a.stage_sizes))
+            res["components"].append(bench_components(algo, a.stage_sizes, precisions=tuple(a.precisions)))
         print("roofline (GEMM rate at the update's shapes) ...", flush=True)
         res["roofline"] = roofline(res)
     if a.checkpoint:
@@ -412,7 +450,8 @@ def render_markdown(res: dict) -> str:
     raw = res["raw_sim_steps_per_s"]
     lines = [
         f"# drs-bench on {res['family']}", "", f"Command: `{res['command']}`", "",
-        f"Machine: {m['cpus']} CPUs, {m['torch_threads']} torch threads, {m['platform']}, torch {m['torch']}, CUDA {m['cuda']}", "",
+        f"Machine: {m['cpus']} CPUs, {m['torch_threads']} torch threads, {m['platform']}, torch {m['torch']}, CUDA {m['cuda']}"
+        + (f", native bf16: {'yes' if m['native_bf16'] else 'no (bf16 is emulated)'}" if "native_bf16" in m else ""), "",
         "| measurement | env steps/s | updates/s | vs plain loop |", "|---|---|---|---|",
         f"| raw simulator (gymnasium, random actions, resets) | {raw:.0f} | - | - |",
     ]
@@ -420,14 +459,17 @@ def render_markdown(res: dict) -> str:
         lines.append(f"| collection only, {c} collector (env + transforms + replay + stage buffers) | {v:.0f} ({v / raw:.2f}x raw) | - | - |")
     for r in res["learn"]:
         ratio = f"{r['over_plain']:.2f}x" if "over_plain" in r else "-"
-        lines.append(f"| phase 1, {r['algo']} (batch {r['batch_size']}, UTD {r['utd']}), {r['collector']} collector | "
+        lines.append(f"| phase 1, {r['algo']} (batch {r['batch_size']}, UTD {r['utd']}), {r['collector']} collector, "
+                     f"{r.get('precision', 'fp32')} | "
                      f"{r['env_steps_per_s']:.1f} | {r['updates_per_s']:.1f} | {ratio} |")
     for q in res["plain"]:
-        lines.append(f"| plain single-file PyTorch DrS loop, same algorithm (batch {q['batch_size']}, UTD 0.5) | "
-                     f"{q['env_steps_per_s']:.1f} | {q['updates_per_s_overall']:.1f} | 1.00x |")
+        spread = f" (before {q['before']:.1f}, after {q['after']:.1f})" if "before" in q else ""
+        lines.append(f"| plain single-file PyTorch DrS loop, same algorithm (batch {q['batch_size']}, UTD 0.5), fp32 | "
+                     f"{q['env_steps_per_s']:.1f}{spread} | {q['updates_per_s_overall']:.1f} | 1.00x |")
     for c in res.get("components", []):
         lines += ["", f"Learner parts, {c['algo']} (batch {c['batch_size']}), ms per call:", "",
                   f"- SAC update (sample, reward recomputation, loss, backward, Adam, target update): {c['sac_update_ms']:.1f} ms eager"
+                  + "".join(f", {ms:.1f} ms {p}" for p, ms in (c.get("sac_update_ms_by_precision") or {}).items() if p != "fp32")
                   + (f", {c['sac_update_compiled_ms']:.1f} ms with `algo.compile=true` (compiled in {c['compile_s']:.0f} s)"
                      if "sac_update_compiled_ms" in c else f" (compile failed: {c.get('compile_error')})"),
                   f"- reward recomputation on one SAC batch (all discriminators, one pass): {c['reward_recompute_ms']:.2f} ms",
@@ -437,11 +479,11 @@ def render_markdown(res: dict) -> str:
     if res.get("roofline"):
         lines += ["", "Roofline: what this machine allows any implementation of the same algorithm "
                   "(matrix products only, at the measured GEMM rate, perfect scaling, simulator fully overlapped):", "",
-                  "| config | GFLOP per SAC update | GEMM GFLOP/s, 1 thread / all | update ms: bound (all cores) / measured | "
-                  "env steps/s bound | plain loop | bound / plain |", "|---|---|---|---|---|---|---|"]
+                  "| config | precision | GFLOP per SAC update | GEMM GFLOP/s, 1 thread / all | update ms: bound (all cores) / measured | "
+                  "env steps/s bound | plain loop | bound / plain |", "|---|---|---|---|---|---|---|---|"]
         for r in res["roofline"]:
             gall = r[f"gemm_gflops_{r['cores']}_threads"]
-            lines.append(f"| {r['algo']} (batch {r['batch_size']}, UTD {r['utd']}) | {r['gflop_per_update']:.2f} | "
+            lines.append(f"| {r['algo']} (batch {r['batch_size']}, UTD {r['utd']}) | {r.get('precision', 'fp32')} | {r['gflop_per_update']:.2f} | "
                          f"{r['gemm_gflops_1_thread']:.0f} / {gall:.0f} | {r['update_ms_lower_bound_all_cores']:.1f} / "
                          f"{r['update_ms_measured']:.1f} | {r['env_steps_per_s_bound']:.1f} | "
                          f"{r.get('plain_env_steps_per_s', float('nan')):.1f} | {r.get('bound_over_plain', float('nan')):.2f}x |")

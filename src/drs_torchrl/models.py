@@ -9,7 +9,11 @@ from tensordict.nn import NormalParamExtractor, TensorDictModule, TensorDictSequ
 from torch import nn
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 
+from drs_torchrl.precision import OutputFloat32
+
 POLICY_FORMAT = "drs-torchrl/policy"  # checkpoints/policy.pt of drs-learn / drs-reuse runs
+# what the actor writes besides "action" (the MLP output and the distribution parameters)
+POLICY_INTERMEDIATE_KEYS = ("actor_params", "loc", "scale")
 
 
 class PolicyCheckpointError(ValueError):
@@ -40,9 +44,13 @@ def make_sac_modules(
     in_keys = list(in_keys)
     n_obs = _in_features(observation_spec, in_keys)
     n_act = int(action_spec.shape[-1])
+    # each MLP ends in a parameterless fp32 cast: under bf16/fp16 autocast only the MLPs' matrix work is
+    # low-precision, the distribution, log-probs and losses stay fp32 (drs_torchrl.precision)
+    actor_mlp = MLP(in_features=n_obs, out_features=2 * n_act, num_cells=list(hidden), activation_class=activation)
+    actor_mlp.append(OutputFloat32())
     actor_net = TensorDictSequential(
         TensorDictModule(
-            MLP(in_features=n_obs, out_features=2 * n_act, num_cells=list(hidden), activation_class=activation),
+            actor_mlp,
             in_keys=in_keys,
             out_keys=["actor_params"],
         ),
@@ -62,6 +70,7 @@ def make_sac_modules(
         default_interaction_type="random",
     )
     qnet = MLP(in_features=n_obs + n_act, out_features=1, num_cells=list(hidden), activation_class=activation)
+    qnet.append(OutputFloat32())
     qvalue = ValueOperator(qnet, in_keys=[*in_keys, "action"])
     device = torch.device(device) if device is not None else observation_spec.device or torch.device("cpu")
     actor, qvalue = actor.to(device), qvalue.to(device)

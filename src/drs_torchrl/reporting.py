@@ -3,12 +3,16 @@
 One PNG per run (``<run_dir>/progress.png``, or ``--out``): per-stage reach rates and success of
 training episodes, evaluation success, discriminator accuracy per stage, reward statistics and
 env steps/s, all against env steps. Several runs given together are overlaid in one figure.
+``drs-plot RUN_DIR --reward-episode``: the paper's Fig. 3, the learned reward along one episode
+against the semi-sparse staircase it fills in (``reward_episode.png``).
 """
 from __future__ import annotations
 
 import argparse
 import sys
 from pathlib import Path
+
+import numpy as np
 
 
 def load(run_dir: Path):
@@ -76,14 +80,67 @@ def plot_runs(run_dirs: list[Path], out: Path) -> Path:
     return out
 
 
+def plot_reward_episode(run_dir: Path, out: Path, *, split: str | None = None, tries: int = 10, seed: int = 0) -> Path:
+    """The paper's Fig. 3 for one episode: the learned reward step by step against the semi-sparse
+    staircase (the stage index in the reward's own units) that it fills in.
+
+    Of ``tries`` sampled-action episodes of the run's policy, the one reaching the highest stage is drawn.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from drs_torchrl.evaluate import EvalError, evaluate_run
+
+    res = evaluate_run(run_dir, episodes=tries, split=split, deterministic=False, seed=seed, keep_episodes=True)
+    desc = res["reward"]
+    if "num_stages" not in desc:
+        raise EvalError(f"{run_dir} trained with reward={desc['name']}, not a learned DrS reward: nothing to illustrate")
+    best = max(range(len(res["rows"])), key=lambda i: (res["rows"][i]["stage"], -i))
+    ep = res["episodes_data"][best]
+    N, formula, offset = desc["num_stages"], desc["formula"], desc["offset"]
+    stage = np.asarray(ep["stage"], dtype=float)
+    staircase = stage / N + offset if formula == "rescaled" else stage
+    t = np.arange(1, len(stage) + 1)
+    fig, ax = plt.subplots(figsize=(7, 3.6))
+    ax.step(t, staircase, where="post", color="0.45", lw=2, label="semi-sparse (stage index)")
+    ax.plot(t, ep["reward"], color="C0", lw=1.8, marker=".", ms=4, label="learned DrS reward")
+    for k in range(1, N + 1):
+        hits = np.nonzero(stage >= k)[0]
+        if hits.size:
+            ax.axvline(t[hits[0]], color=f"C{k}", ls=":", lw=1)
+            ax.text(t[hits[0]], ax.get_ylim()[1], f" stage {k}", color=f"C{k}", va="top", fontsize=8)
+    ax.set_xlabel("step of the episode")
+    ax.set_ylabel("reward")
+    ax.set_title(f"{res['family']} ({res['split']}): one episode reaching stage {int(stage.max())} of {N}", fontsize=10)
+    ax.legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="drs-plot", description="plot drs-torchrl runs")
     p.add_argument("runs", nargs="+", type=Path)
     p.add_argument("--out", type=Path, default=None)
+    p.add_argument("--reward-episode", action="store_true",
+                   help="instead: the learned reward along one episode of the run's policy against the semi-sparse "
+                        "staircase (the paper's Fig. 3), written to RUN/reward_episode.png")
+    p.add_argument("--split", default=None, help="with --reward-episode: train | test | a variant (default: the run's)")
+    p.add_argument("--tries", type=int, default=10, help="with --reward-episode: episodes tried; the furthest-reaching is drawn")
     a = p.parse_args(argv)
     try:
-        out = plot_runs(a.runs, a.out or a.runs[0] / "progress.png")
-    except FileNotFoundError as exc:
+        if a.reward_episode:
+            from drs_torchrl.console import quiet_libraries
+
+            quiet_libraries()
+            out = plot_reward_episode(a.runs[0], a.out or a.runs[0] / "reward_episode.png", split=a.split, tries=a.tries)
+        else:
+            out = plot_runs(a.runs, a.out or a.runs[0] / "progress.png")
+    except (FileNotFoundError, ValueError, KeyError) as exc:
         print(f"drs-plot: error: {exc}", file=sys.stderr)
         return 2
     print(out)

@@ -28,6 +28,7 @@ def make_family_env(
     transforms: Sequence[Transform] = (),
     seed: int | None = None,
     cpu_batching: str = "serial",
+    render_mode: str | None = None,
 ) -> TransformedEnv:
     """A :class:`~torchrl.envs.TransformedEnv` for ``variant`` of ``family``.
 
@@ -68,7 +69,8 @@ def make_family_env(
             make_one = functools.partial(ManiSkillEnv, env_id, family.all_info_keys, sim_backend="physx_cpu", **kwargs)
             base = SerialEnv(num_envs, make_one)
     else:
-        base = ManiSkillEnv(env_id, family.all_info_keys, num_envs=num_envs, sim_backend=sim_backend, **kwargs)
+        base = ManiSkillEnv(env_id, family.all_info_keys, num_envs=num_envs, sim_backend=sim_backend,
+                            render_mode=render_mode, **kwargs)
     env = TransformedEnv(base, StageIndicator(
             family.stage_keys,
             semi_sparse_reward=semi_sparse_reward,

@@ -67,6 +67,7 @@ class ManiSkillEnv(EnvBase):
         observation_key: str = "observation",
         task_observation_key: str | None = None,
         device: str | torch.device | None = None,
+        render_mode: str | None = None,
     ):
         import gymnasium as gym
 
@@ -96,7 +97,7 @@ class ManiSkillEnv(EnvBase):
             num_envs=num_envs,
             sim_backend="physx_cuda" if gpu else "physx_cpu",
             reward_mode=reward_mode,
-            render_mode=None,
+            render_mode=render_mode,  # "rgb_array" for videos (drs-eval --video); None: no camera work
             **kwargs,
         )
         if control_mode is not None:
@@ -118,6 +119,14 @@ class ManiSkillEnv(EnvBase):
         super().__init__(device=device if device is not None else self._sim_device, batch_size=batch)
         self._seed: int | None = None
         self._make_specs()
+
+    def render_frame(self) -> np.ndarray:
+        """The current camera image, ``(H, W, 3)`` uint8 (first env), of an env made with ``render_mode="rgb_array"``."""
+        frame = self._gym_env.render()
+        if frame is None:
+            raise RuntimeError(f"{self.env_id} was made without render_mode='rgb_array'; it renders nothing")
+        frame = frame.cpu().numpy() if isinstance(frame, torch.Tensor) else np.asarray(frame)
+        return frame[0] if frame.ndim == 4 else frame
 
     # ------------------------------------------------------------------ specs
     @property

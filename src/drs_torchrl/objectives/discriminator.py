@@ -100,7 +100,7 @@ class DiscriminatorLoss(LossModule):
         out = {}
         total = x.new_zeros(())
         for k in range(N):
-            logits = self.discriminators.stage_logits(x[k], k)
+            logits = self.discriminators.stage_logits(x[k], k).float()  # fp32 loss under autocast
             loss_k = F.binary_cross_entropy_with_logits(logits, y[k])
             with torch.no_grad():
                 acc_k = ((logits > 0).float() == y[k]).float().mean()

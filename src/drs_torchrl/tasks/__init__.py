@@ -79,6 +79,9 @@ class TaskFamily:
         if split == "train":
             return self.train_variants
         if split == "test":
+            if not self.test_variants:
+                raise KeyError(f"family {self.name!r} has no test variants; name some (env.test_variants=[...] for a "
+                               "family defined in config) or pick a variant with env.split=<variant>")
             return self.test_variants
         if split not in self.variants:
             self.variant_kwargs(split)  # raises the KeyError naming the known variants
@@ -135,8 +138,48 @@ def get_family(name: str) -> TaskFamily:
         raise KeyError(f"unknown task family {name!r}; known families: {sorted(_FAMILIES)}") from None
 
 
-def list_families() -> list[str]:
-    return sorted(_FAMILIES)
+def list_families(include_config: bool = False) -> list[str]:
+    """Names of the built-in families (and, with ``include_config``, of those defined in config this process)."""
+    return sorted(n for n, f in _FAMILIES.items() if include_config or not f.extra.get("from_config"))
+
+
+# env-config fields of a family defined entirely in config (conf/env/custom.yaml)
+CONFIG_FAMILY_FIELDS = ("env_id", "stage_keys", "info_keys", "reward_in_keys", "variants", "train_variants", "test_variants")
+
+
+def family_from_config(env_cfg) -> TaskFamily:
+    """The task family of an ``env`` config: a registered one (``env=pick_cube``), or one the config
+    defines itself (``env=custom env.family=NAME env.env_id=... env.stage_keys=[...]``), which is
+    registered under its name so that checkpoints and reuse find it."""
+    if env_cfg.get("env_id") is None:
+        return get_family(env_cfg.family)
+    name = str(env_cfg.family)
+    if name in _FAMILIES and not _FAMILIES[name].extra.get("from_config"):
+        raise ValueError(f"env.family={name!r} is a built-in family; give the family defined in config another name "
+                         f"(e.g. env.family=my_{name})")
+    def _list(key):
+        value = env_cfg.get(key)
+        return tuple(str(v) for v in (value or ()))
+    variants = {str(k): dict(v or {}) for k, v in (env_cfg.get("variants") or {"default": {}}).items()}
+    train = _list("train_variants") or (next(iter(variants)),)
+    try:
+        family = TaskFamily(
+            name=name,
+            env_id=str(env_cfg.env_id),
+            stage_keys=_list("stage_keys"),
+            info_keys=_list("info_keys"),
+            reward_in_keys=_list("reward_in_keys") or ("observation", "stage_indicators"),
+            variants=variants,
+            train_variants=train,
+            test_variants=_list("test_variants"),
+            control_mode=env_cfg.get("control_mode") or "pd_ee_delta_pos",
+            max_episode_steps=int(env_cfg.get("max_episode_steps") or 50),
+            description=f"defined in config: {env_cfg.env_id} with stages {list(_list('stage_keys'))}",
+            extra={"from_config": True},
+        )
+    except ValueError as exc:
+        raise ValueError(f"env=custom: {exc} (set env.stage_keys, env.variants, env.train_variants, env.test_variants)") from None
+    return register_family(family)
 
 
 # one module per family; each registers itself on import

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import signal
 import sys
 from datetime import datetime
 from pathlib import Path
@@ -22,6 +23,9 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 GROUPS = ("env", "reward", "algo", "logger")
+# files by which a directory is recognised as holding a run (Hydra's own .hydra/ is not one: it
+# writes that for the new run before the app starts)
+RUN_MARKERS = ("config.yaml", "summary.json", "train.csv", "eval.csv", "checkpoints")
 
 
 def _run_dir_resolver(resume, default):
@@ -31,8 +35,14 @@ def _run_dir_resolver(resume, default):
 _STARTED = datetime.now().strftime("%Y%m%d-%H%M%S")  # one stamp per process: resolvers run more than once
 
 
-def _hydra_subdir_resolver(resume):
-    return ".hydra-resume-" + _STARTED if resume else ".hydra"
+def _hydra_subdir_resolver(resume, run_dir=None):
+    """Where Hydra writes its record: ``.hydra`` for a new run, but never over another run's record
+    (a resume, or a new run pointed at a directory that holds a run, writes beside it)."""
+    if resume:
+        return ".hydra-resume-" + _STARTED
+    if run_dir and any((Path(str(run_dir)) / m).exists() for m in RUN_MARKERS):
+        return ".hydra-new-" + _STARTED
+    return ".hydra"
 
 
 OmegaConf.register_new_resolver("drs_run_dir", _run_dir_resolver, replace=True)
@@ -82,9 +92,41 @@ def conf_dir() -> str:
     raise FileNotFoundError("cannot find drs-torchrl's conf/ directory; set DRS_CONF_DIR=/path/to/conf")
 
 
+class ExistingRunError(ValueError):
+    """A fresh run pointed at a directory that already holds one."""
+
+
+def check_fresh_run_dir(run_dir: Path, phase: str, overwrite: bool) -> None:
+    """Refuse to start a new run in ``run_dir`` when it holds a run, unless ``overwrite``: then that
+    run's files are removed first, so the new run's logs and checkpoints are not mixed with them."""
+    found = [m for m in RUN_MARKERS if (run_dir / m).exists()]
+    if not found:
+        return
+    if not overwrite:
+        raise ExistingRunError(
+            f"{run_dir} already holds a run ({', '.join(found)}); continue it with drs-{phase} resume={run_dir}, "
+            f"choose another hydra.run.dir, or replace it with overwrite=true"
+        )
+    for m in found:
+        path = run_dir / m
+        shutil.rmtree(path) if path.is_dir() else path.unlink()
+    shutil.rmtree(run_dir / "tb", ignore_errors=True)
+    for old in run_dir.glob(".hydra-resume-*"):
+        shutil.rmtree(old, ignore_errors=True)
+    new = sorted(run_dir.glob(".hydra-new-*"))
+    if new:  # this run's Hydra record becomes the directory's .hydra
+        shutil.rmtree(run_dir / ".hydra", ignore_errors=True)
+        new[-1].rename(run_dir / ".hydra")
+
+
 def _run(cfg: DictConfig, phase: str) -> None:
+    from drs_torchrl.console import library_messages_requested, quiet_libraries, survive_closed_output
+
+    survive_closed_output()  # a closed pipe (| tee, then Ctrl-C) must not cost the run its final save
+    if not library_messages_requested(cfg):
+        quiet_libraries()
     from drs_torchrl.envs.doctor import CudaUnavailableError, MissingAssetError, VulkanUnavailableError
-    from drs_torchrl.tasks import get_family
+    from drs_torchrl.tasks import family_from_config
     from drs_torchrl.trainers.loop import ConfigError, NonFiniteError, TrainingStateError, train
     from drs_torchrl.transforms.reward import RewardCheckpointError
 
@@ -95,13 +137,15 @@ def _run(cfg: DictConfig, phase: str) -> None:
         if resume:
             run_dir = str(Path(cfg.resume))
             cfg = resume_config(Path(run_dir), phase, list(HydraConfig.get().overrides.task), composed=cfg)
-        get_family(cfg.env.family)
+        else:
+            check_fresh_run_dir(Path(run_dir), phase, bool(cfg.get("overwrite", False)))
+        family_from_config(cfg.env)
         summary = train(cfg, phase, run_dir, resume=resume)
     except (ConfigError, RewardCheckpointError, MissingAssetError, VulkanUnavailableError, CudaUnavailableError, TrainingStateError,
-            ResumeError, KeyError, ValueError) as exc:
+            ResumeError, ExistingRunError, KeyError, ValueError) as exc:
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
         print(f"drs-{phase}: error: {msg}", file=sys.stderr)
-        if record is not None and record.name.startswith(".hydra-resume-"):
+        if record is not None and record.name.startswith((".hydra-resume-", ".hydra-new-")):
             shutil.rmtree(record, ignore_errors=True)  # a failed resume leaves the run as it was
             try:
                 record.parent.rmdir()  # only if Hydra made it for a path that was not a run
@@ -111,8 +155,6 @@ def _run(cfg: DictConfig, phase: str) -> None:
     except NonFiniteError as exc:
         print(f"drs-{phase}: stopped: {exc}", file=sys.stderr)
         sys.exit(3)
-    if summary.get("interrupted"):
-        print(f"drs-{phase}: interrupted at {summary['frames']} env steps; continue with: drs-{phase} resume={run_dir}")
     ev = summary.get("last_eval", {})
     print(
         f"drs-{phase}: {summary['frames']} env steps, {summary['updates']} SAC updates in "
@@ -121,6 +163,11 @@ def _run(cfg: DictConfig, phase: str) -> None:
     )
     for name, path in summary.get("checkpoints", {}).items():
         print(f"  {name} checkpoint: {path}")
+    if summary.get("interrupted"):
+        # non-zero, as shells expect (130 SIGINT, 143 SIGTERM): "drs-learn ... && drs-reuse ..." stops here
+        print(f"drs-{phase}: interrupted at {summary['frames']} env steps; continue with: drs-{phase} resume={run_dir}",
+              file=sys.stderr)
+        sys.exit(128 + int(summary.get("signal", signal.SIGINT)))
 
 
 @hydra.main(config_path=conf_dir(), config_name="learn", version_base=None)

@@ -34,19 +34,51 @@ from drs_torchrl.data import StageBuffers, TrajectoryAssembler
 from drs_torchrl.data.persistence import SnapshotError, dump_buffer, load_buffer
 from drs_torchrl.demos import check_demos, load_demos
 from drs_torchrl.envs.factory import make_family_env
-from drs_torchrl.models import POLICY_FORMAT, make_sac_modules
+from drs_torchrl.models import POLICY_FORMAT, POLICY_INTERMEDIATE_KEYS, make_sac_modules
 from drs_torchrl.objectives import DiscriminatorLoss
+from drs_torchrl.precision import autocast, describe_precision, grad_scaler, resolve_precision
 from drs_torchrl.rewards import new_drs_reward, reward_setup
 from drs_torchrl.run_logger import RunLogger
-from drs_torchrl.tasks import get_family
+from drs_torchrl.tasks import family_from_config
 
 
 class ConfigError(ValueError):
     """A configuration value that cannot work, with the fix in its message."""
 
 
+# numeric settings and their types: a value of another type (``total_frames=abc``) is refused by name
+# before anything compares or computes with it
+_NUMERIC = {
+    "total_frames": int, "seed": int, "checkpoint_interval": int, "torch_threads": (int, type(None)),
+    "eval.interval": int, "eval.episodes": int, "logger.interval": int, "logger.episode_window": int,
+    "algo.batch_size": int, "algo.frames_per_batch": int, "algo.learning_starts": int, "algo.buffer_size": int,
+    "algo.utd": (int, float), "algo.gamma": (int, float), "algo.tau": (int, float),
+    "reward.alpha": (int, float), "reward.stage_buffer_size": int,
+    "reward.disc.batch_size": int, "reward.disc.lr": (int, float), "reward.disc.updates_per_sac_update": int,
+    "reward.disc.window": int, "reward.disc.early_stop_threshold": (int, float, type(None)),
+}
+
+
+def _check_types(cfg: DictConfig) -> None:
+    for key, types in _NUMERIC.items():
+        value = OmegaConf.select(cfg, key, default="__absent__")
+        if isinstance(value, str) and value == "__absent__":
+            continue
+        if isinstance(value, bool) or not isinstance(value, types):
+            kinds = types if isinstance(types, tuple) else (types,)
+            want = " or ".join("null" if t is type(None) else ("a number" if t is float else "an integer") for t in kinds
+                               if not (t is int and float in kinds))
+            raise ConfigError(f"{key} must be {want}, got {value!r} ({type(value).__name__}); e.g. {key}="
+                              f"{_EXAMPLES.get(key, 1)}")
+
+
+_EXAMPLES = {"total_frames": 200000, "algo.gamma": 0.8, "algo.tau": 0.005, "algo.utd": 0.5, "reward.alpha": 0.3333,
+             "reward.disc.lr": 0.0003, "algo.batch_size": 256, "seed": 0}
+
+
 def validate_config(cfg: DictConfig, phase: str) -> None:
     """Reject values that would fail later or silently do nothing."""
+    _check_types(cfg)
     a = cfg.algo
     checks = [
         (cfg.total_frames > 0, f"total_frames must be > 0, got {cfg.total_frames}"),
@@ -117,7 +149,10 @@ class Trainer:
         if cfg.get("torch_threads"):
             torch.set_num_threads(int(cfg.torch_threads))
         self.device = torch.device("cuda" if cfg.device == "auto" and torch.cuda.is_available() else ("cpu" if cfg.device == "auto" else cfg.device))
-        self.family = family = get_family(cfg.env.family)
+        # algo.precision: autocast of the learner's forward passes, fp32 master weights (drs_torchrl.precision)
+        self.precision = resolve_precision(str(cfg.algo.get("precision") or "fp32"), self.device)
+        self._grad_scaler = grad_scaler(self.precision, self.device)
+        self.family = family = family_from_config(cfg.env)
         self.num_stages = family.num_stages
         self.reward = reward = reward_setup(cfg.reward, phase)
         env_kwargs = dict(
@@ -162,7 +197,13 @@ class Trainer:
         self.actor, self.qvalue = make_sac_modules(
             self.env.observation_spec, self.env.action_spec, list(a.policy_in_keys), list(a.hidden), device=self.device
         )
-        self.loss = instantiate(a.loss)(actor_network=self.actor, qvalue_network=self.qvalue, action_spec=self.env.action_spec)
+        loss_kwargs = {}
+        if self.precision != "fp32" and "deactivate_vmap" not in a.loss:
+            # torch.autocast does not reach inside torch.vmap (the twin critics' batched pass would stay
+            # fp32): in low precision the critics are evaluated one after the other
+            loss_kwargs["deactivate_vmap"] = True
+        self.loss = instantiate(a.loss)(actor_network=self.actor, qvalue_network=self.qvalue, action_spec=self.env.action_spec,
+                                        **loss_kwargs)
         self.loss.to(self.device)
         self.loss.make_value_estimator(gamma=float(a.gamma))
         # algo.compile: the SAC loss's forward (and, through AOTAutograd, its backward) compiled with
@@ -175,6 +216,9 @@ class Trainer:
         # the learned reward recomputes ("next", "reward") from the current discriminators at sampling
         # (its storage lives on the learner's device, where the reward transform runs)
         self.replay = instantiate(a.replay_buffer, storage={"device": str(self.device)})(transform=self.learned)
+        # the actor's intermediate outputs and the collector's bookkeeping are not stored: SACLoss
+        # recomputes the former, nothing reads the latter, and every extra key costs at each sample
+        self._replay_exclude = (*POLICY_INTERMEDIATE_KEYS, "collector")
         if self.learned is not None:
             d = cfg.reward.disc
             self.stage_buffers = StageBuffers(
@@ -185,7 +229,8 @@ class Trainer:
                 self.learned.discriminators, self.learned.reward_in_keys,
                 early_stop_threshold=d.early_stop_threshold, window=int(d.window), latch=bool(d.get("latch", True)),
             )
-            self.optim_disc = torch.optim.Adam(self.learned.discriminators.parameters(), lr=float(d.lr))
+            self.optim_disc = torch.optim.Adam(self.learned.discriminators.parameters(), lr=float(d.lr),
+                                               fused=bool(d.get("fused", False)))
             demos = cfg.get("demos") or {}
             self.num_demos = 0
             if demos.get("path") and not resume:  # a resumed run has them in its stage-buffer snapshot
@@ -230,12 +275,12 @@ class Trainer:
         if self.stage_buffers is None or len(self.stage_buffers) == 0:
             return None
         batch = self.stage_buffers.sample_discriminator_batch().to(self.device)
-        out = self.disc_loss(batch)
+        with autocast(self.precision, self.device):
+            out = self.disc_loss(batch)
         loss = out["loss_discriminator"]
         if loss.requires_grad:
             self.optim_disc.zero_grad(set_to_none=True)
-            loss.backward()
-            self.optim_disc.step()
+            self._backward_and_step(loss, (self.optim_disc,))
             self.disc_updates += 1
         return out.detach()
 
@@ -358,6 +403,9 @@ class Trainer:
         except (SnapshotError, OSError, KeyError, RuntimeError) as exc:
             raise TrainingStateError(f"the training state in {state_dir} is damaged: {exc}") from exc
         self.recent.extend(tuple(e) for e in payload["recent_episodes"])
+        stored = self.replay.storage._storage if len(self.replay) else None
+        if stored is not None and any(k in stored.keys() for k in self._replay_exclude):
+            self._replay_exclude = ()  # a run whose replay buffer was started with every key keeps them
         torch.set_rng_state(payload["rng"]["torch"])
         np.random.set_state(payload["rng"]["numpy"])
         random.setstate(payload["rng"]["python"])
@@ -425,7 +473,9 @@ class Trainer:
         next_log = (self.frames // log_every + 1) * log_every
         next_eval = (self.frames // eval_every + 1) * eval_every
         next_ckpt = (self.frames // ckpt_every + 1) * ckpt_every
-        summary: dict[str, Any] = {"phase": self.phase, "run_dir": str(self.run_dir), "resumed_from": self.resumed_from}
+        summary: dict[str, Any] = {"phase": self.phase, "run_dir": str(self.run_dir), "resumed_from": self.resumed_from,
+                                   "precision": self.precision}
+        tqdm.write(f"drs-{self.phase}: {describe_precision(self.precision, self.device)}")
         remaining = total - self.frames
         if remaining > 0:
             self.collector = self.make_collector(remaining)
@@ -465,7 +515,7 @@ class Trainer:
                 n = batch.numel()
                 self.frames += n
                 window_frames += n
-                self.replay.extend(batch.reshape(-1))
+                self.replay.extend(batch.exclude(*self._replay_exclude).reshape(-1))
                 episodes = self.assembler.add(batch)
                 if episodes:
                     self.recent.extend(episode_summary(ep, self.episode_reward) for ep in episodes)
@@ -516,11 +566,13 @@ class Trainer:
                     self.logger.flush()
                 if stop.signum is not None:  # SIGINT/SIGTERM: stop here, between two rounds
                     interrupted = True
+                    summary["signal"] = int(stop.signum)
                     tqdm.write(f"signal {stop.signum} at {self.frames} env steps: saving the training state in "
                                f"{self.run_dir / 'checkpoints'}")
                     break
         except KeyboardInterrupt:  # a second Ctrl-C forces the stop wherever the loop was
             interrupted = forced = True
+            summary["signal"] = int(signal.SIGINT)
             tqdm.write(f"forced stop at {self.frames} env steps: the last periodic training state is kept "
                        "(the buffers may be mid-write, so nothing is saved now)")
         except NonFiniteError:
@@ -557,18 +609,30 @@ class Trainer:
         return summary
 
     def _sac_step(self) -> tuple[TensorDict, torch.Tensor]:
-        sample = self.replay.sample().to(self.device)
-        out = self._loss_fn(sample)
+        sample = self.replay.sample().to(self.device)  # the learned reward is recomputed here, in fp32
+        with autocast(self.precision, self.device):
+            out = self._loss_fn(sample)
         total = out["loss_actor"] + out["loss_qvalue"] + out["loss_alpha"]
         self._check_finite("SAC loss", total.detach())
-        for opt in (self.optim_actor, self.optim_critic, self.optim_alpha):
+        opts = (self.optim_actor, self.optim_critic, self.optim_alpha)
+        for opt in opts:
             opt.zero_grad(set_to_none=True)
-        total.backward()
-        for opt in (self.optim_actor, self.optim_critic, self.optim_alpha):
-            opt.step()
+        self._backward_and_step(total, opts)
         self.target_updater.step()
         self.updates += 1
         return out.detach(), sample.get(("next", "reward")).detach()
+
+    def _backward_and_step(self, loss: torch.Tensor, optimizers) -> None:
+        """Backward pass and optimiser steps, through the fp16 gradient scaler when there is one."""
+        if self._grad_scaler is None:
+            loss.backward()
+            for opt in optimizers:
+                opt.step()
+            return
+        self._grad_scaler.scale(loss).backward()
+        for opt in optimizers:
+            self._grad_scaler.step(opt)
+        self._grad_scaler.update()
 
     def _train_row(self, sac_stats, disc_stats, rewards, frames, updates, dt, t_collect, t_update) -> dict[str, float]:
         row: dict[str, float] = {
@@ -708,6 +772,10 @@ def _background_worker_env(make_env):
     """Build the env in a background collector's worker process, which ignores SIGINT (see
     :meth:`Trainer._collector_env`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if os.environ.get("DRS_QUIET_LIBRARIES") == "1":
+        from drs_torchrl.console import quiet_libraries
+
+        quiet_libraries()
     return make_env()
 
 

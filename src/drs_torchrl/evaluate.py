@@ -1,0 +1,170 @@
+"""``drs-eval``: a trained policy's episodes on any split or variant, reported as ManiSkill evaluates.
+
+    drs-eval RUN_DIR                                  # 10 deterministic episodes on the run's own split
+    drs-eval RUN_DIR --split test --episodes 50       # the held-out variants
+    drs-eval RUN_DIR --split cube_1_5cm --override cube_half_size=0.016
+    drs-eval RUN_DIR --episodes 3 --video videos/     # and an mp4 per episode (software Vulkan renders it)
+
+Per episode: ``success_once`` (success at any step), ``success_at_end`` (at the last step; the same
+here because episodes end on success, as in the authors' code), the highest stage reached, the
+length and the return under the run's own reward (its learned reward for a DrS run). Prints a table
+and writes ``eval_<split>.json`` into the run directory (or ``--out``).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+
+class EvalError(ValueError):
+    """A run directory or option that cannot be evaluated."""
+
+
+def _run_reward(run_dir: Path, cfg):
+    """The reward transform the run trained with, for the episodes' return (None: the env's reward)."""
+    from drs_torchrl.transforms.reward import DrSReward
+
+    if cfg.reward.name != "drs":
+        return None
+    path = run_dir / "checkpoints" / "reward.pt" if cfg.phase == "learn" else Path(cfg.reward.checkpoint)
+    return DrSReward.from_checkpoint(path)
+
+
+def evaluate_run(run_dir: str | Path, *, episodes: int = 10, split: str | None = None, overrides: dict | None = None,
+                 deterministic: bool = True, seed: int = 12345, video_dir: str | Path | None = None,
+                 keep_episodes: bool = False) -> dict:
+    """Roll out the policy of ``run_dir`` for ``episodes`` episodes; returns per-episode rows and means
+    (and, with ``keep_episodes``, each episode's stage and reward per step under ``"episodes"``)."""
+    from omegaconf import OmegaConf
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    from drs_torchrl.envs.factory import make_family_env
+    from drs_torchrl.models import PolicyCheckpointError, load_policy
+    from drs_torchrl.rewards import reward_setup
+    from drs_torchrl.tasks import family_from_config
+
+    run_dir = Path(run_dir)
+    if run_dir.is_file() and run_dir.parent.name == "checkpoints":  # RUN_DIR/checkpoints/policy.pt
+        run_dir = run_dir.parent.parent
+    if not (run_dir / "config.yaml").is_file():
+        raise EvalError(f"{run_dir} is not a drs-learn/drs-reuse run directory (no config.yaml)")
+    if episodes < 1:
+        raise EvalError(f"--episodes must be >= 1, got {episodes}")
+    cfg = OmegaConf.load(run_dir / "config.yaml")
+    family = family_from_config(cfg.env)
+    split = split or cfg.env.split
+    family.split_variants(split)  # unknown names raise the KeyError listing the variants
+    setup = reward_setup(cfg.reward, "learn") if cfg.phase == "learn" else reward_setup(cfg.reward, "reuse")
+    variant_overrides = {**(OmegaConf.to_container(cfg.env.variant_overrides) or {}), **(overrides or {})}
+    env = make_family_env(
+        family, split, seed=seed, variant_overrides=variant_overrides or None, reward_mode=setup.env_reward_mode,
+        semi_sparse_reward=setup.semi_sparse, semi_sparse_offset=setup.semi_sparse_offset,
+        control_mode=cfg.env.control_mode, max_episode_steps=cfg.env.max_episode_steps,
+        render_mode="rgb_array" if video_dir else None,
+    )
+    try:
+        actor, meta = load_policy(run_dir, env.observation_spec, env.action_spec, family=family.name)
+    except PolicyCheckpointError as exc:
+        env.close()
+        raise EvalError(str(exc)) from exc
+    reward = _run_reward(run_dir, cfg)
+    if video_dir:
+        video_dir = Path(video_dir)
+        video_dir.mkdir(parents=True, exist_ok=True)
+    rows, kept = [], []
+    mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
+    try:
+        for i in range(episodes):
+            frames = []
+            callback = (lambda e, td: frames.append(e.base_env.render_frame())) if video_dir else None
+            start = env.reset()
+            if video_dir:
+                frames.append(env.base_env.render_frame())  # the start state
+            with set_exploration_type(mode), torch.no_grad():
+                # the callback runs after every step but the last one
+                ep = env.rollout(100_000, actor, break_when_any_done=True, callback=callback, auto_reset=False,
+                                 tensordict=start)
+            if video_dir:
+                frames.append(env.base_env.render_frame())  # the final state
+            nxt = ep.get("next")
+            success = nxt.get("success").reshape(-1)
+            r = reward.reward(nxt) if reward is not None else nxt.get("reward")
+            row = {"episode": i, "success_once": bool(success.any()), "success_at_end": bool(success[-1]),
+                   "stage": int(nxt.get("stage").max()), "length": int(ep.shape[-1]), "return": float(r.sum())}
+            if video_dir and frames:
+                import imageio
+
+                path = video_dir / f"{run_dir.name}-{split}-ep{i}.mp4"
+                imageio.mimsave(path, [np.asarray(f) for f in frames], fps=20, macro_block_size=1)
+                row["video"] = str(path)
+            rows.append(row)
+            if keep_episodes:
+                kept.append({"stage": nxt.get("stage").reshape(-1).tolist(), "reward": r.reshape(-1).tolist()})
+    finally:
+        env.close()
+    n = family.num_stages
+    summary = {
+        "run_dir": str(run_dir), "family": family.name, "split": split, "overrides": overrides or {},
+        "episodes": episodes, "deterministic": deterministic, "policy_frames": meta.get("frames"),
+        "success_once": float(np.mean([r["success_once"] for r in rows])),
+        "success_at_end": float(np.mean([r["success_at_end"] for r in rows])),
+        "return": float(np.mean([r["return"] for r in rows])),
+        "length": float(np.mean([r["length"] for r in rows])),
+        **{f"reach_stage_{k}": float(np.mean([r["stage"] >= k for r in rows])) for k in range(1, n + 1)},
+        "rows": rows,
+    }
+    if keep_episodes:
+        summary["episodes_data"] = kept
+        summary["reward"] = reward.description() if reward is not None else {"name": cfg.reward.name}
+    return summary
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="drs-eval", description=__doc__.split("\n")[0])
+    p.add_argument("run_dir", help="a drs-learn / drs-reuse run directory (or its checkpoints/policy.pt)")
+    p.add_argument("--episodes", type=int, default=10)
+    p.add_argument("--split", default=None, help="train | test | a variant name (default: the run's split)")
+    p.add_argument("--override", action="append", default=[], metavar="K=V", help="a variant parameter, e.g. cube_half_size=0.016")
+    p.add_argument("--stochastic", action="store_true", help="sample actions instead of the deterministic policy")
+    p.add_argument("--seed", type=int, default=12345)
+    p.add_argument("--video", metavar="DIR", help="record each episode to DIR/*.mp4")
+    p.add_argument("--out", help="where to write the JSON report (default RUN_DIR/eval_<split>.json)")
+    a = p.parse_args(argv)
+    from drs_torchrl.console import quiet_libraries
+
+    quiet_libraries()
+    import yaml
+
+    try:
+        overrides = {}
+        for o in a.override:
+            k, sep, v = o.partition("=")
+            if not sep:
+                raise EvalError(f"--override takes K=V, got {o!r}")
+            overrides[k] = yaml.safe_load(v)
+        res = evaluate_run(a.run_dir, episodes=a.episodes, split=a.split, overrides=overrides,
+                           deterministic=not a.stochastic, seed=a.seed, video_dir=a.video)
+    except (EvalError, KeyError, ValueError, FileNotFoundError) as exc:
+        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        print(f"drs-eval: error: {msg}", file=sys.stderr)
+        return 2
+    out = Path(a.out) if a.out else Path(res["run_dir"]) / f"eval_{res['split']}.json"
+    out.write_text(json.dumps(res, indent=2))
+    reach = "  ".join(f"stage>={k} {res[f'reach_stage_{k}']:.2f}" for k in range(1, 99) if f"reach_stage_{k}" in res)
+    print(f"drs-eval: {res['family']} {res['split']}, {res['episodes']} {'deterministic' if res['deterministic'] else 'stochastic'} "
+          f"episodes of the policy at {res['policy_frames']} env steps")
+    print(f"  success_once {res['success_once']:.2f}  success_at_end {res['success_at_end']:.2f}  {reach}  "
+          f"return {res['return']:.2f}  length {res['length']:.1f}")
+    if a.video:
+        print(f"  videos in {a.video}")
+    print(f"  report: {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,230 @@
+"""``drs-study``: many drs-learn / drs-reuse runs from one YAML file, K at a time, re-invocable.
+
+A study file names its runs (a ``grid`` of overrides and/or an explicit ``runs`` list); every
+invocation starts what has not started, resumes (``resume=DIR``) what was interrupted, and skips
+what has finished, so the same command is re-run across sessions until the study is done::
+
+    drs-study results/precision/study.yaml --jobs 2          # both cores, one torch thread per run
+    drs-study results/precision/study.yaml --status          # what is done, what is left
+
+Study file::
+
+    root: runs/precision                 # run directories: <root>/<run name>
+    app: learn                           # learn | reuse (per run: app:)
+    common: [env=turn_valve, total_frames=120000, eval.episodes=10]
+    grid: {algo.precision: [fp32, bf16], seed: [0, 1]}     # run names like precision-bf16_seed-1
+    runs:                                # optional extra runs; needs: runs that must finish first
+      - {name: reuse-drs-s0, app: reuse, args: [reward=drs, reward.checkpoint=<root>/learn-s0/checkpoints/reward.pt], needs: [learn-s0]}
+
+A run is finished when its ``summary.json`` says it was not interrupted and it reached its
+``total_frames``. SIGINT/SIGTERM to the study stop every run at its next batch boundary (each
+saves its training state) and the study exits 130/143; re-invoke it to continue.
+(Hydra's multirun launchers start every job afresh and know neither resuming nor skipping.)
+"""
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+
+class StudyError(ValueError):
+    """A study file that cannot be run."""
+
+
+@dataclass
+class Run:
+    name: str
+    app: str
+    args: list[str]
+    needs: list[str] = field(default_factory=list)
+
+
+def _short(key: str) -> str:
+    return key.split(".")[-1]
+
+
+def _safe(value) -> str:
+    """A value as part of a directory name Hydra accepts in an override (no ``,=/`` or spaces)."""
+    return re.sub(r"[^A-Za-z0-9.+-]", "-", str(value))
+
+
+def load_study(path: str | Path) -> tuple[Path, list[Run]]:
+    """(root, runs) of a study file; raises :class:`StudyError` naming what is wrong."""
+    path = Path(path)
+    if not path.is_file():
+        raise StudyError(f"study file {path} does not exist")
+    try:
+        spec = yaml.safe_load(path.read_text()) or {}
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise StudyError(f"{path} is not a YAML study file ({type(exc).__name__})") from None
+    if not isinstance(spec, dict) or "root" not in spec:
+        raise StudyError(f"{path}: a study file is a mapping with at least 'root' and 'grid' or 'runs'")
+    unknown = set(spec) - {"root", "app", "common", "grid", "runs", "description"}
+    if unknown:
+        raise StudyError(f"{path}: unknown keys {sorted(unknown)} (allowed: root, app, common, grid, runs, description)")
+    root = Path(spec["root"])
+    app = spec.get("app", "learn")
+    common = [str(a) for a in spec.get("common") or []]
+    runs: list[Run] = []
+    grid = spec.get("grid") or {}
+    if grid:
+        keys = list(grid)
+        for values in itertools.product(*(grid[k] if isinstance(grid[k], list) else [grid[k]] for k in keys)):
+            name = "_".join(f"{_short(k)}-{_safe(v)}" for k, v in zip(keys, values))
+            runs.append(Run(name, app, [*common, *(f"{k}={v}" for k, v in zip(keys, values))]))
+    for r in spec.get("runs") or []:
+        if not isinstance(r, dict) or "name" not in r:
+            raise StudyError(f"{path}: every entry of 'runs' needs a name, got {r!r}")
+        args = [str(a).replace("<root>", str(root)) for a in r.get("args") or []]
+        runs.append(Run(str(r["name"]), r.get("app", app), [*common, *args], [str(n) for n in r.get("needs") or []]))
+    if not runs:
+        raise StudyError(f"{path}: no runs (give a 'grid' or a 'runs' list)")
+    names = [r.name for r in runs]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise StudyError(f"{path}: run names {dup} appear twice")
+    for r in runs:
+        if r.app not in ("learn", "reuse"):
+            raise StudyError(f"{path}: run {r.name}: app must be learn or reuse, got {r.app!r}")
+        missing = [n for n in r.needs if n not in names]
+        if missing:
+            raise StudyError(f"{path}: run {r.name} needs {missing}, which the study does not define")
+    return root, runs
+
+
+def run_state(run_dir: Path) -> str:
+    """``finished``, ``resumable`` (a complete training state), ``broken`` (a directory with no
+    usable state: it is started again) or ``new``."""
+    summary = run_dir / "summary.json"
+    if summary.is_file():
+        try:
+            s = json.loads(summary.read_text())
+            import omegaconf
+
+            total = int(omegaconf.OmegaConf.load(run_dir / "config.yaml").total_frames)
+            if not s.get("interrupted") and int(s.get("frames", 0)) >= total:
+                return "finished"
+        except Exception:
+            pass
+    ck = run_dir / "checkpoints"
+    if (ck / "state" / "COMPLETE").is_file() or (ck / "state.old" / "COMPLETE").is_file():
+        return "resumable"
+    return "broken" if run_dir.exists() else "new"
+
+
+def command(run: Run, run_dir: Path, state: str) -> list[str]:
+    exe = str(Path(sys.executable).parent / f"drs-{run.app}")
+    if state == "resumable":
+        # overrides that only extend (e.g. a larger total_frames) are honoured on resume
+        extend = [a for a in run.args if a.split("=", 1)[0] in ("total_frames",)]
+        return [exe, f"resume={run_dir}", *extend]
+    return [exe, *run.args, f"hydra.run.dir={run_dir}"]
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="drs-study", description=__doc__.split("\n")[0])
+    p.add_argument("study", help="study YAML file")
+    p.add_argument("--jobs", "-j", type=int, default=2, help="runs side by side (default 2: one per core of a 2-core machine)")
+    p.add_argument("--threads", type=int, default=1, help="torch threads per run (default 1)")
+    p.add_argument("--status", action="store_true", help="print each run's state and exit")
+    p.add_argument("--only", nargs="*", default=None, help="run only these run names")
+    a = p.parse_args(argv)
+    try:
+        root, runs = load_study(a.study)
+    except StudyError as exc:
+        print(f"drs-study: error: {exc}", file=sys.stderr)
+        return 2
+    if a.only is not None:
+        unknown = [n for n in a.only if n not in {r.name for r in runs}]
+        if unknown:
+            print(f"drs-study: error: --only names {unknown} that the study does not define", file=sys.stderr)
+            return 2
+        runs = [r for r in runs if r.name in a.only]
+    states = {r.name: run_state(root / r.name) for r in runs}
+    if a.status:
+        for r in runs:
+            print(f"{states[r.name]:>10}  {root / r.name}")
+        return 0
+    (root / "logs").mkdir(parents=True, exist_ok=True)
+    pending = [r for r in runs if states[r.name] != "finished"]
+    for r in runs:
+        if states[r.name] == "finished":
+            print(f"drs-study: {r.name}: finished, skipped", flush=True)
+    active: dict[str, subprocess.Popen] = {}
+    failed: list[str] = []
+    stop = {"sig": None}
+
+    def on_signal(signum, frame):
+        stop["sig"] = signum
+        for proc in active.values():
+            proc.send_signal(signal.SIGTERM)  # each run saves at its next batch boundary
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    env = dict(os.environ, OMP_NUM_THREADS=str(a.threads), MKL_NUM_THREADS=str(a.threads))
+    try:
+        while (pending or active) and stop["sig"] is None:
+            for name, proc in list(active.items()):
+                if proc.poll() is not None:
+                    del active[name]
+                    state = run_state(root / name)
+                    print(f"drs-study: {name}: exit {proc.returncode}, {state}", flush=True)
+                    if state != "finished":
+                        failed.append(name)
+            done = {n for n, s in ((r.name, run_state(root / r.name)) for r in runs) if s == "finished"}
+            for r in list(pending):
+                if len(active) >= a.jobs:
+                    break
+                if any(n in failed for n in r.needs):
+                    pending.remove(r)
+                    failed.append(r.name)
+                    print(f"drs-study: {r.name}: not started, it needs {r.needs} and one of them failed", flush=True)
+                    continue
+                if not all(n in done for n in r.needs):
+                    continue
+                run_dir = root / r.name
+                state = run_state(run_dir)
+                if state == "broken":  # started but never reached a checkpoint: nothing to keep
+                    shutil.rmtree(run_dir)
+                cmd = command(r, run_dir, state)
+                if state != "resumable" and not any(c.startswith("torch_threads=") for c in cmd):
+                    cmd.append(f"torch_threads={a.threads}")  # a resumed run keeps its own
+                log = open(root / "logs" / f"{r.name}.log", "a")
+                log.write(f"\n# {time.strftime('%Y-%m-%d %H:%M:%S')} {' '.join(cmd)}\n")
+                log.flush()
+                print(f"drs-study: {r.name}: {'resuming' if state == 'resumable' else 'starting'}", flush=True)
+                active[r.name] = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env)
+                pending.remove(r)
+            if pending and not active:
+                waiting = [r.name for r in pending]
+                print(f"drs-study: error: {waiting} wait for runs that are not in this invocation", file=sys.stderr)
+                return 2
+            time.sleep(2)
+        for proc in active.values():
+            proc.wait()
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+    if stop["sig"] is not None:
+        print("drs-study: stopped; every run saved its state. Re-run the same command to continue.", flush=True)
+        return 128 + stop["sig"]
+    if failed:
+        print(f"drs-study: {len(failed)} run(s) did not finish: {failed} (see {root / 'logs'})", file=sys.stderr)
+        return 1
+    print(f"drs-study: all {len(runs)} runs finished in {root}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,77 @@
+"""drs-eval: deterministic episodes of a trained run on any split, with ManiSkill's metrics and mp4 video."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import imageio.v3 as iio
+import pytest
+
+pytestmark = [pytest.mark.sim, pytest.mark.slow]
+
+BIN = Path(sys.executable).parent
+TINY = [
+    "total_frames=320", "algo.learning_starts=128", "algo.batch_size=32", "algo.hidden=[16,16]",
+    "reward.disc.batch_size=16", "logger.interval=128", "eval.interval=100000", "eval.episodes=0",
+    "checkpoint_interval=100000", "logger.tensorboard=false", "logger.progress_bar=false",
+    "env.max_episode_steps=20",
+]
+
+
+def run(cmd, *args, cwd):
+    return subprocess.run([str(BIN / cmd), *args], cwd=cwd, capture_output=True, text=True, timeout=600)
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    d = tmp_path_factory.mktemp("run")
+    p = run("drs-learn", *TINY, f"hydra.run.dir={d}", cwd=d)
+    assert p.returncode == 0, p.stderr[-3000:]
+    return d
+
+
+def test_eval_reports_maniskill_metrics_on_the_held_out_split(trained):
+    p = run("drs-eval", str(trained), "--episodes", "3", "--split", "test", cwd=trained)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert "success_once" in p.stdout and "success_at_end" in p.stdout and "stage>=3" in p.stdout
+    res = json.loads((trained / "eval_test.json").read_text())
+    assert res["split"] == "test" and res["episodes"] == 3 and len(res["rows"]) == 3
+    for row in res["rows"]:
+        assert 1 <= row["length"] <= 20
+        assert row["success_at_end"] <= row["success_once"]
+        # the return is under the run's learned reward: (k + tanh(D_k)/3)/3 - 2 per step, so within these bounds
+        assert -2.12 * row["length"] <= row["return"] <= -0.99 * row["length"]
+    assert res["success_once"] == sum(r["success_once"] for r in res["rows"]) / 3
+
+
+def test_eval_records_one_mp4_frame_per_step(trained, tmp_path):
+    p = run("drs-eval", str(trained), "--episodes", "1", "--video", str(tmp_path / "v"), "--out", str(tmp_path / "r.json"),
+            cwd=trained)
+    assert p.returncode == 0, p.stderr[-2000:]
+    row = json.loads((tmp_path / "r.json").read_text())["rows"][0]
+    frames = list(iio.imiter(row["video"]))
+    # the start state, then one frame after each step
+    assert len(frames) == row["length"] + 1 and frames[0].ndim == 3 and frames[0].shape[-1] == 3
+    assert frames[0].std() > 1  # a picture, not a blank frame
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--split", "cube_9cm"], "no variant 'cube_9cm'"),
+    (["--episodes", "0"], "--episodes must be >= 1"),
+])
+def test_eval_bad_input_is_one_line(trained, args, message):
+    p = run("drs-eval", str(trained), *args, cwd=trained)
+    assert p.returncode == 2 and message in p.stderr and "Traceback" not in p.stderr
+
+
+def test_eval_refuses_a_directory_that_is_not_a_run(tmp_path):
+    p = run("drs-eval", str(tmp_path), cwd=tmp_path)
+    assert p.returncode == 2 and "not a drs-learn/drs-reuse run directory" in p.stderr
+
+
+def test_reward_episode_figure_is_drawn_from_a_real_episode(trained, tmp_path):
+    out = tmp_path / "fig3.png"
+    p = run("drs-plot", str(trained), "--reward-episode", "--tries", "2", "--out", str(out), cwd=trained)
+    assert p.returncode == 0, p.stderr[-2000:]
+    img = iio.imread(out)
+    assert img.shape[0] > 200 and img.shape[1] > 400 and img.std() > 5

@@ -1,0 +1,110 @@
+"""algo.precision: bf16 autocast of the learner with fp32 master weights, detection of native support."""
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from torchrl.modules import MLP
+
+from drs_torchrl.precision import OutputFloat32, PrecisionError, native_bf16, resolve_precision
+from drs_torchrl.trainers.apps import conf_dir
+from drs_torchrl.trainers.loop import Trainer
+
+
+def _cpuinfo_flags() -> set[str]:
+    for line in Path("/proc/cpuinfo").read_text().splitlines():
+        if line.startswith("flags"):
+            return set(line.split(":", 1)[1].split())
+    return set()
+
+
+@pytest.mark.skipif(not Path("/proc/cpuinfo").is_file(), reason="reads the CPU flags from /proc/cpuinfo (Linux)")
+def test_auto_is_bf16_exactly_where_the_cpu_has_bf16_instructions():
+    native = bool(_cpuinfo_flags() & {"avx512_bf16", "amx_bf16"})
+    assert native_bf16("cpu") == native
+    assert resolve_precision("auto", "cpu") == ("bf16" if native else "fp32")
+    assert resolve_precision("bf16", "cpu") == "bf16"  # asked for explicitly: allowed (emulated where not native)
+    assert resolve_precision("fp32", "cpu") == "fp32"
+
+
+def test_unknown_or_unsupported_precisions_are_refused():
+    with pytest.raises(PrecisionError, match="auto|fp32|bf16|fp16"):
+        resolve_precision("fp8", "cpu")
+    with pytest.raises(PrecisionError, match="needs a CUDA device.*bf16"):
+        resolve_precision("fp16", "cpu")
+
+
+def test_output_cast_adds_no_parameters():
+    plain = MLP(in_features=5, out_features=2, num_cells=[8, 8])
+    cast = MLP(in_features=5, out_features=2, num_cells=[8, 8])
+    cast.append(OutputFloat32())
+    assert list(cast.state_dict()) == list(plain.state_dict())  # old policy checkpoints still load
+    cast.load_state_dict(plain.state_dict())
+    x = torch.randn(3, 5)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        assert plain(x).dtype == torch.bfloat16
+        assert cast(x).dtype == torch.float32
+
+
+TINY = [
+    "total_frames=640", "algo.learning_starts=256", "algo.batch_size=64", "algo.hidden=[32,32]",
+    "reward.disc.batch_size=32", "eval.episodes=0", "logger.progress_bar=false", "logger.tensorboard=false",
+    "checkpoint_interval=1000000", "logger.interval=256",
+]
+
+
+def _trainer(tmp_path, precision):
+    with initialize_config_dir(config_dir=conf_dir(), version_base=None):
+        cfg = compose("learn", overrides=[*TINY, f"algo.precision={precision}"])
+    return Trainer(cfg, "learn", tmp_path)
+
+
+@pytest.mark.sim
+def test_bf16_learner_multiplies_in_bf16_and_keeps_fp32_weights_state_and_losses(tmp_path):
+    tr = _trainer(tmp_path, "bf16")
+    assert tr.precision == "bf16"
+    before = {k: v.clone() for k, v in tr.loss.qvalue_network_params.items(True, True)}
+    seen = {}
+    hidden = next(m for m in tr.loss.qvalue_network.modules() if isinstance(m, torch.nn.Linear))
+    def record(module, inputs, output):
+        seen.setdefault("hidden", set()).add(output.dtype)
+
+    hook = hidden.register_forward_hook(record)
+    summary = tr.run()
+    hook.remove()
+    assert summary["precision"] == "bf16" and summary["updates"] > 0 and summary["disc_updates"] >= 0
+    assert seen["hidden"] == {torch.bfloat16}  # every critic matrix product ran in bf16 (none escaped autocast in vmap)
+    params = dict(tr.loss.named_parameters())
+    assert params and all(p.dtype == torch.float32 for p in params.values())
+    after = dict(tr.loss.qvalue_network_params.items(True, True))
+    assert any(not torch.equal(before[k], after[k]) for k in before)  # it trained
+    for opt in (tr.optim_actor, tr.optim_critic, tr.optim_disc):
+        for st in opt.state.values():
+            assert st["exp_avg"].dtype == torch.float32 and st["exp_avg_sq"].dtype == torch.float32
+    for d in tr.learned.discriminators.parameters():
+        assert d.dtype == torch.float32
+
+
+@pytest.mark.sim
+def test_bf16_sac_loss_matches_fp32_on_the_same_batch(tmp_path):
+    """Same networks, same replay batch, same sampling noise: the bf16 losses are the fp32 ones
+    up to bf16 rounding of the matrix products (learning itself is compared in results/precision/)."""
+    tr = _trainer(tmp_path, "fp32")
+    tr.run()
+    sample = tr.replay.sample()
+    losses = {}
+    for name, ctx in (("fp32", torch.autocast("cpu", enabled=False)), ("bf16", torch.autocast("cpu", dtype=torch.bfloat16))):
+        torch.manual_seed(0)
+        with ctx:
+            out = tr.loss(sample.clone())
+        losses[name] = {k: float(out[k]) for k in ("loss_actor", "loss_qvalue", "loss_alpha")}
+        assert all(out[k].dtype == torch.float32 for k in ("loss_actor", "loss_qvalue"))
+    for k, v in losses["fp32"].items():
+        assert losses["bf16"][k] == pytest.approx(v, rel=0.05, abs=0.02), (k, losses)
+
+
+@pytest.mark.sim
+def test_bad_precision_override_is_a_config_error(tmp_path):
+    with pytest.raises(PrecisionError, match="needs a CUDA device"):
+        _trainer(tmp_path, "fp16")
+    assert not (tmp_path / "config.yaml").exists()  # nothing written for a run that cannot start
