@@ -29,10 +29,9 @@ def _run_reward(run_dir: Path, cfg):
     """The reward transform the run trained with, for the episodes' return (None: the env's reward)."""
     from drs_torchrl.transforms.reward import DrSReward
 
-    if cfg.reward.name != "drs":
-        return None
-    path = run_dir / "checkpoints" / "reward.pt" if cfg.phase == "learn" else Path(cfg.reward.checkpoint)
-    return DrSReward.from_checkpoint(path)
+    if cfg.reward.name != "drs" or cfg.phase != "learn":
+        return None  # a reused DrS reward is the setup's frozen transform
+    return DrSReward.from_checkpoint(run_dir / "checkpoints" / "reward.pt")
 
 
 def evaluate_run(run_dir: str | Path, *, episodes: int = 10, split: str | None = None, overrides: dict | None = None,
@@ -59,7 +58,7 @@ def evaluate_run(run_dir: str | Path, *, episodes: int = 10, split: str | None =
     family = family_from_config(cfg.env)
     split = split or cfg.env.split
     family.split_variants(split)  # unknown names raise the KeyError listing the variants
-    setup = reward_setup(cfg.reward, "learn") if cfg.phase == "learn" else reward_setup(cfg.reward, "reuse")
+    setup = reward_setup(cfg.reward, cfg.phase)
     variant_overrides = {**(OmegaConf.to_container(cfg.env.variant_overrides) or {}), **(overrides or {})}
     env = make_family_env(
         family, split, seed=seed, variant_overrides=variant_overrides or None, reward_mode=setup.env_reward_mode,
@@ -72,7 +71,7 @@ def evaluate_run(run_dir: str | Path, *, episodes: int = 10, split: str | None =
     except PolicyCheckpointError as exc:
         env.close()
         raise EvalError(str(exc)) from exc
-    reward = _run_reward(run_dir, cfg)
+    reward = _run_reward(run_dir, cfg) or setup.frozen
     if video_dir:
         video_dir = Path(video_dir)
         video_dir.mkdir(parents=True, exist_ok=True)

@@ -99,7 +99,8 @@ class ExistingRunError(ValueError):
 def check_fresh_run_dir(run_dir: Path, phase: str, overwrite: bool) -> None:
     """Refuse to start a new run in ``run_dir`` when it holds a run, unless ``overwrite``: then that
     run's files are removed first, so the new run's logs and checkpoints are not mixed with them."""
-    found = [m for m in RUN_MARKERS if (run_dir / m).exists()]
+    # an empty checkpoints/ is what a run that failed to start leaves: no run to protect
+    found = [m for m in RUN_MARKERS if (run_dir / m).is_file() or ((run_dir / m).is_dir() and any((run_dir / m).iterdir()))]
     if not found:
         return
     if not overwrite:
