@@ -46,7 +46,7 @@ def trainer(algo, extra):
 
 
 def update(tr):
-    tr._disc_step()
+    tr.learner.update()
     tr._sac_step()
 
 

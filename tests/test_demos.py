@@ -256,3 +256,33 @@ def test_policy_demo_errors_name_the_problem(tmp_path, capsys):
             load_policy(run, env.observation_spec, env.action_spec)
     finally:
         env.close()
+
+
+def test_planner_demos_replayed_in_the_agents_controller(pick_cube, tmp_path):
+    """--control-mode pd_ee_delta_pos (the agent's): ManiSkill's converter replays each solution in the agent's
+    controller; the recorded actions, replayed from the same seed in that controller, succeed again."""
+    import gymnasium as gym
+    import numpy as np
+
+    states, meta = record_demos(pick_cube, "cube_2cm", 1, seed=10, progress=False, control_mode="pd_ee_delta_pos")
+    assert meta["actions"] == {"control_mode": "pd_ee_delta_pos", "size": 4}
+    path = save_demos(states, meta, tmp_path / "ee.demos")
+    (ep,), meta = load_demos(path)
+    assert ep["action"].shape == (ep.shape[0], 4) and ep["state", "observation"].shape == (ep.shape[0], 42)
+    # each row's "state" is the row before it (the first: the reset state, at stage 0)
+    assert torch.equal(ep["state", "observation"][1:], ep["observation"][:-1]) and int(ep["state", "stage"][0]) == 0
+    import mani_skill.envs  # noqa: F401
+
+    import drs_torchrl.envs.variants  # noqa: F401
+
+    args = pick_cube.env_args("cube_2cm")
+    env = gym.make(args["env_id"], obs_mode="state", control_mode="pd_ee_delta_pos", num_envs=1, sim_backend="physx_cpu",
+                   max_episode_steps=1000, **args["env_kwargs"])
+    try:
+        obs, _ = env.reset(seed=meta["seeds"][0])
+        assert np.allclose(np.asarray(obs).reshape(-1), ep["state", "observation"][0].numpy(), atol=1e-5)
+        for a in ep["action"]:
+            obs, _, _, _, info = env.step(a.numpy())
+        assert bool(info["success"])
+    finally:
+        env.close()

@@ -78,7 +78,7 @@ def test_bf16_learner_multiplies_in_bf16_and_keeps_fp32_weights_state_and_losses
     assert params and all(p.dtype == torch.float32 for p in params.values())
     after = dict(tr.loss.qvalue_network_params.items(True, True))
     assert any(not torch.equal(before[k], after[k]) for k in before)  # it trained
-    for opt in (tr.optim_actor, tr.optim_critic, tr.optim_disc):
+    for opt in (tr.optim_actor, tr.optim_critic, tr.learner.optim):
         for st in opt.state.values():
             assert st["exp_avg"].dtype == torch.float32 and st["exp_avg_sq"].dtype == torch.float32
     for d in tr.learned.discriminators.parameters():

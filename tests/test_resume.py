@@ -63,9 +63,9 @@ def test_sigkill_then_resume_continues_from_the_saved_step(tmp_path):
     try:
         assert tr.frames == saved_frames and tr.updates == payload["counters"]["updates"]
         assert len(tr.replay) == saved_frames  # every collected transition
-        assert tr.stage_buffers.episodes_per_stage.tolist() == payload["stage_buffer_episodes"]
-        assert 0 < len(tr.stage_buffers) <= saved_frames
-        assert torch.equal(tr.disc_loss.recent_stages, payload["disc_loss"]["recent_stages"])
+        assert tr.learner.stage_buffers.episodes_per_stage.tolist() == payload["learner"]["stage_buffer_episodes"]
+        assert 0 < len(tr.learner.stage_buffers) <= saved_frames
+        assert torch.equal(tr.learner.loss.recent_stages, payload["learner"]["disc_loss"]["recent_stages"])
         assert tr.optim_critic.state_dict()["state"][0]["step"] == payload["counters"]["updates"]
         assert torch.equal(tr.loss.log_alpha.detach(), payload["loss"]["log_alpha"])
     finally:

@@ -135,19 +135,19 @@ def bench_components(algo: str, sizes: list[int], batch_reps: int = 50, precisio
         sample = tr.replay.sample()
         nxt = sample.get("next")
         out["reward_recompute_ms"] = per_call_ms(lambda: tr.learned.reward(nxt), n=200)
-        out["disc_update_ms"] = per_call_ms(tr._disc_step, n=200)
-        states = torch.cat(tr.stage_buffers.snapshot_parts())
-        episode = tr.stage_buffers.stage_data(0)[:50].clone()
+        out["disc_update_ms"] = per_call_ms(tr.learner.update, n=200)
+        states = torch.cat(tr.learner.stage_buffers.snapshot_parts())
+        episode = tr.learner.stage_buffers.stage_data(0)[:50].clone()
         ep = TensorDict({"next": episode}, batch_size=episode.shape)
         sweep = []
         for size in sorted(sizes):
-            while len(tr.stage_buffers) < size:
-                tr.stage_buffers.extend(states[: size - len(tr.stage_buffers)])
-            tr.stage_buffers.sample_discriminator_batch()  # sync the new slots' labels (once)
-            n = len(tr.stage_buffers)
-            ms = per_call_ms(tr.stage_buffers.sample_discriminator_batch, n=200)
+            while len(tr.learner.stage_buffers) < size:
+                tr.learner.stage_buffers.extend(states[: size - len(tr.learner.stage_buffers)])
+            tr.learner.stage_buffers.sample_discriminator_batch()  # sync the new slots' labels (once)
+            n = len(tr.learner.stage_buffers)
+            ms = per_call_ms(tr.learner.stage_buffers.sample_discriminator_batch, n=200)
             # filing adds 50 transitions per call (12 calls: at most 600, small beside the sizes swept)
-            file_ms = per_call_ms(lambda: (tr.stage_buffers.add_trajectory(ep), tr.stage_buffers.sample_discriminator_batch()),
+            file_ms = per_call_ms(lambda: (tr.learner.stage_buffers.add_trajectory(ep), tr.learner.stage_buffers.sample_discriminator_batch()),
                                   n=10, warm=2)
             sweep.append({"transitions": n, "sample_ms": ms, "file_episode_and_sample_ms": file_ms})
         out["stage_sample"] = sweep
@@ -324,11 +324,11 @@ def bench_checkpoint(transitions: int) -> dict:
         tr.run()  # 1024 real transitions, saved state included
         tr = Trainer(cfg, "learn", d, resume=True)
         real = tr.replay[: len(tr.replay)].clone()
-        states = torch.cat(tr.stage_buffers.snapshot_parts())
+        states = torch.cat(tr.learner.stage_buffers.snapshot_parts())
         while len(tr.replay) < transitions:
             tr.replay.extend(real[: transitions - len(tr.replay)])
-        while len(tr.stage_buffers) < transitions:
-            tr.stage_buffers.extend(states[: transitions - len(tr.stage_buffers)])
+        while len(tr.learner.stage_buffers) < transitions:
+            tr.learner.stage_buffers.extend(states[: transitions - len(tr.learner.stage_buffers)])
         t = time.perf_counter()
         state = tr.save_training_state()
         write_s = time.perf_counter() - t
@@ -337,7 +337,7 @@ def bench_checkpoint(transitions: int) -> dict:
         t = time.perf_counter()
         tr2 = Trainer(cfg, "learn", d, resume=True)
         read_s = time.perf_counter() - t
-        ok = len(tr2.replay) == transitions and len(tr2.stage_buffers) == transitions
+        ok = len(tr2.replay) == transitions and len(tr2.learner.stage_buffers) == transitions
         tr2.close()
     finally:
         shutil.rmtree(d, ignore_errors=True)

@@ -1,8 +1,10 @@
 """Demonstrations for the top stage buffer (Algorithm 1, line 3: ``B_N <- B_N U D``).
 
 DrS optionally seeds the top stage buffer with successful trajectories. The reward reads only next
-states, so a demonstration is a sequence of states: actions are not stored and the demonstrator may
-use another controller than the RL agent. ``drs-demos`` generates them with ManiSkill's
+states, so a demonstration is a sequence of states and the demonstrator may use another controller
+than the RL agent. Demonstrations recorded from a policy (``--from-policy``) also keep the agent's
+actions and the states they were taken in, for rewards of ``(s, a)`` such as GAIL's; planner
+demonstrations (joint-position control, not the agent's controller) keep states only. ``drs-demos`` generates them with ManiSkill's
 motion-planning solvers (joint-position control; the state observation is the same under every
 controller).
 
@@ -11,10 +13,12 @@ On-disk format (a directory, e.g. ``demos/pick_cube-cube_2cm.demos``):
 * ``states/``: a memory-mapped TensorDict (``TensorDict.load_memmap``) of batch ``[S]``, one row per
   state ``s'`` reached by the demonstrator, episodes concatenated in order. Entries:
   ``observation`` (float, the env's flat state), ``stage_indicators`` (float, monotone),
-  ``stage`` (int64), every indicator of the family (bool), ``episode`` and ``step`` (int64).
+  ``stage`` (int64), every indicator of the family (bool), ``episode`` and ``step`` (int64); from a
+  policy also ``action`` (the action that led to the row's state) and ``state`` (a sub-TensorDict of
+  the reward inputs and ``stage`` of the state it was taken in).
 * ``meta.json``: ``format``, ``version``, ``family``, ``env_id``, ``variant``, ``variant_kwargs``,
   ``stage_keys``, ``shapes`` (entry -> trailing size), ``episodes``, ``lengths``, ``seeds``,
-  ``solver``.
+  ``solver``; from a policy ``actions`` (``control_mode``, ``size``).
 
 Episodes are cut at their first successful state (training episodes terminate there).
 
@@ -42,7 +46,7 @@ import torch
 from tensordict import TensorDict
 
 from drs_torchrl.data.persistence import load_memmap_checked
-from drs_torchrl.tasks import TaskFamily, get_family
+from drs_torchrl.tasks import TaskFamily, get_family, with_stages
 from drs_torchrl.transforms.stages import StageIndicator
 
 DEMO_FORMAT = "drs-torchrl/demos"
@@ -74,8 +78,14 @@ def _successful_episode(states: TensorDict, labeller, index: int) -> TensorDict 
 
 
 def record_demos(family: TaskFamily, variant: str, num: int, *, seed: int = 0, variant_overrides: dict | None = None,
-                 max_tries: int | None = None, progress: bool = True) -> tuple[TensorDict, dict]:
-    """Run the family's solver until ``num`` successful episodes are recorded; returns (states, meta)."""
+                 max_tries: int | None = None, progress: bool = True, control_mode: str = "pd_joint_pos") -> tuple[TensorDict, dict]:
+    """Run the family's solver until ``num`` successful episodes are recorded; returns (states, meta).
+
+    The solver plans in joint-position control. ``control_mode`` other than ``"pd_joint_pos"`` (e.g. the
+    agent's ``"pd_ee_delta_pos"``, Appendix A) replays each solved episode in a second env with that
+    controller through ManiSkill's own converter (``mani_skill.trajectory.utils.actions.conversion``),
+    and records that env: the states the agent's controller reaches, its actions, and the states they
+    were taken in. A converted episode that does not succeed is dropped."""
     import gymnasium as gym
     import mani_skill.envs  # noqa: F401
 
@@ -92,6 +102,14 @@ def record_demos(family: TaskFamily, variant: str, num: int, *, seed: int = 0, v
                    render_mode=None, max_episode_steps=10 * family.max_episode_steps, **kwargs)
     recorder = _Recorder(env, family.all_info_keys, family.task_observation_key)
     labeller = StageIndicator(family.stage_keys)
+    target = None
+    if control_mode != "pd_joint_pos":
+        from mani_skill.trajectory.utils.actions.conversion import from_pd_joint_pos
+
+        target_env = gym.make(env_id, obs_mode="state", control_mode=control_mode, num_envs=1, sim_backend="physx_cpu",
+                              render_mode=None, max_episode_steps=40 * family.max_episode_steps, **kwargs)
+        target = _Recorder(target_env, family.all_info_keys, family.task_observation_key)
+    state_keys = [k for k in ("observation", "stage_indicators", family.task_observation_key) if k]
     episodes, lengths, seeds = [], [], []
     tries, s = 0, seed
     max_tries = max_tries or 3 * num + 10
@@ -109,13 +127,25 @@ def record_demos(family: TaskFamily, variant: str, num: int, *, seed: int = 0, v
             print(f"  seed {s}: solver failed ({exc.__class__.__name__}); skipping", file=sys.stderr)
             s += 1
             continue
-        states = recorder.states()
+        states, rec = recorder.states(), recorder
+        if states is not None and target is not None:  # replay the solution in the agent's controller
+            actions = recorder.actions()
+            recorder.reset(seed=s)
+            target.reset(seed=s)
+            try:
+                from_pd_joint_pos(control_mode, actions, recorder, target)
+            except Exception as exc:
+                print(f"  seed {s}: conversion to {control_mode} failed ({exc.__class__.__name__}); skipping", file=sys.stderr)
+                states = None
+            else:
+                states, rec = target.states(), target
         s += 1
         if states is None:
             continue
         states = _successful_episode(states, labeller, len(episodes))
         if states is None:
             continue
+        states = _with_previous_states(states, rec._reset_obs, [k for k in state_keys if k in states.keys()] + ["stage"])
         episodes.append(states)
         lengths.append(states.shape[0])
         seeds.append(s - 1)
@@ -124,12 +154,15 @@ def record_demos(family: TaskFamily, variant: str, num: int, *, seed: int = 0, v
     if progress:
         print(file=sys.stderr)
     env.close()
+    if target is not None:
+        target.env.close()
     data = torch.cat(episodes, 0)
     meta = {
         "format": DEMO_FORMAT, "version": DEMO_VERSION, "family": family.name, "env_id": env_id,
         "variant": variant, "variant_kwargs": kwargs, "stage_keys": list(family.stage_keys),
         "shapes": {k: int(data[k].shape[-1]) for k in ("observation", "stage_indicators", family.task_observation_key) if k},
         "episodes": len(episodes), "lengths": lengths, "seeds": seeds, "solver": ref,
+        "actions": {"control_mode": control_mode, "size": int(data["action"].shape[-1])},
     }
     return data, meta
 
@@ -160,6 +193,7 @@ def record_policy_demos(policy_path: str | Path, variant: str | None = None, num
         env_cfg = OmegaConf.to_container(OmegaConf.load(cfg_file)).get("env") or {}
         if env_cfg.get("family", family.name) != family.name:
             env_cfg = {}
+    family = with_stages(family, env_cfg.get("stages"))  # a stage-ablation run observes only its stages
     overrides = {**(env_cfg.get("variant_overrides") or {}), **(variant_overrides or {})}
     variant = variant or env_cfg.get("split") or "train"  # default: the split the policy was trained on
     env = make_family_env(family, variant, variant_overrides=overrides or None, seed=seed,
@@ -169,6 +203,9 @@ def record_policy_demos(policy_path: str | Path, variant: str | None = None, num
         keys = [k for k in ("observation", *family.all_info_keys, family.task_observation_key)
                 if k and k in env.observation_spec.keys(True)]
         labeller = StageIndicator(family.stage_keys)
+        reward_keys = [k for k in ("observation", "stage_indicators", family.task_observation_key, *family.reward_in_keys)
+                       if k and k in env.observation_spec.keys(True)]
+        reward_keys = list(dict.fromkeys(reward_keys))
         limit = int(getattr(env.base_env, "max_episode_steps", 0) or 0)  # the env's time limit, or -1/0: unknown
         if limit <= 0:
             limit = int(env_cfg.get("max_episode_steps") or family.max_episode_steps)
@@ -185,6 +222,10 @@ def record_policy_demos(policy_path: str | Path, variant: str | None = None, num
                 tried += 1
                 nxt = td["next"]
                 states = TensorDict({k: nxt[k].clone() for k in keys}, batch_size=[td.shape[0]])
+                # what (s, a) rewards such as GAIL's need: the action taken and the state it was taken in
+                states.set("action", td["action"].clone().float())
+                states.set("state", TensorDict({k: td[k].clone() for k in (*reward_keys, "stage") if k in td.keys()},
+                                               batch_size=[td.shape[0]]))
                 states = _successful_episode(states, labeller, len(episodes))
                 if progress:
                     print(f"\r  {len(episodes) + (states is not None)}/{num} demos from {tried} episodes "
@@ -208,6 +249,9 @@ def record_policy_demos(policy_path: str | Path, variant: str | None = None, num
         "max_episode_steps": limit,
         "solver": f"policy:{file} (frames {pmeta.get('frames')}, {'deterministic' if deterministic else 'stochastic'})",
         "episodes_tried": tried, "success_rate": len(episodes) / tried,
+        # actions are the agent's own (its controller), with the states they were taken in ("state")
+        "actions": {"control_mode": env_cfg.get("control_mode") or args.get("control_mode") or family.control_mode,
+                    "size": int(data["action"].shape[-1])},
     }
     return data, meta
 
@@ -228,7 +272,9 @@ class _Recorder:
 
     def reset(self, **kwargs):
         self._rows = []
-        return self.env.reset(**kwargs)
+        obs, info = self.env.reset(**kwargs)
+        self._reset_obs = torch.as_tensor(obs).reshape(-1).float()
+        return obs, info
 
     def settle(self, steps: int) -> None:
         """Repeat the last action (joint targets) until success, for at most ``steps`` steps."""
@@ -240,7 +286,8 @@ class _Recorder:
     def step(self, action):
         self._last_action = action
         obs, reward, terminated, truncated, info = self.env.step(action)
-        row = {"observation": torch.as_tensor(obs).reshape(-1).float()}
+        row = {"observation": torch.as_tensor(obs).reshape(-1).float(),
+               "action": torch.as_tensor(action).reshape(-1).float()}
         for k in self.info_keys:
             row[k] = torch.as_tensor(info[k]).reshape(1).bool()
         if self.task_key:  # the robot-agnostic reward input of families such as cross_robot
@@ -252,6 +299,19 @@ class _Recorder:
         if not self._rows:
             return None
         return TensorDict({k: torch.stack([r[k] for r in self._rows]) for k in self._rows[0]}, batch_size=[len(self._rows)])
+
+    def actions(self) -> list:
+        return [r["action"].numpy() for r in self._rows]
+
+
+def _with_previous_states(states: TensorDict, reset_obs: torch.Tensor, keys) -> TensorDict:
+    """Add ``state``: for each row, the reward inputs and stage of the state its ``action`` was taken in
+    (the previous row's; for the first, the reset observation at stage 0)."""
+    first = TensorDict({k: (reset_obs if k == "observation" else torch.zeros_like(states[k][0])) for k in keys},
+                       batch_size=[])
+    prev = torch.cat([first.unsqueeze(0), states[:-1].select(*keys)], 0)
+    states.set("state", prev)
+    return states
 
 
 def save_demos(states: TensorDict, meta: dict, path: str | Path) -> Path:
@@ -584,6 +644,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--max-episodes", type=int, default=None, help="--from-policy: give up after this many (default 20 x --num)")
     p.add_argument("--override", action="append", default=[], metavar="KEY=VALUE",
                    help="--from-policy: a variant parameter for every episode, e.g. max_steps=150 (repeatable)")
+    p.add_argument("--control-mode", default=None, help="solver demonstrations: replay them in this controller "
+                   "(e.g. pd_ee_delta_pos, the agent's; default: the family's) with ManiSkill's converter; "
+                   "pd_joint_pos keeps the planner's own")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=None, help="default: demos/<family>-<variant>.demos "
                    "(-policy.demos with --from-policy)")
@@ -613,7 +676,8 @@ def main(argv: list[str] | None = None) -> int:
             if a.from_h5 is not None:
                 states, meta = load_maniskill_h5(a.from_h5, fam, a.variant or "train", num=a.num)
             else:
-                states, meta = record_demos(fam, a.variant or "train", a.num or 100, seed=a.seed)
+                states, meta = record_demos(fam, a.variant or "train", a.num or 100, seed=a.seed,
+                                            control_mode=a.control_mode or fam.control_mode or "pd_joint_pos")
         out = a.out or Path("demos") / f"{fam.name}-{meta['variant']}{'-policy' if a.from_policy else ''}.demos"
     except (KeyError, DemoError, RuntimeError, ValueError, TypeError) as exc:
         print(f"drs-demos: error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)

@@ -27,11 +27,12 @@ class EvalError(ValueError):
 
 def _run_reward(run_dir: Path, cfg):
     """The reward transform the run trained with, for the episodes' return (None: the env's reward)."""
-    from drs_torchrl.transforms.reward import DrSReward
+    from drs_torchrl.rewards import LEARNED
+    from drs_torchrl.transforms.reward import load_reward
 
-    if cfg.reward.name != "drs" or cfg.phase != "learn":
-        return None  # a reused DrS reward is the setup's frozen transform
-    return DrSReward.from_checkpoint(run_dir / "checkpoints" / "reward.pt")
+    if cfg.reward.name not in LEARNED or cfg.phase != "learn":
+        return None  # a reused learned reward is the setup's frozen transform
+    return load_reward(run_dir / "checkpoints" / "reward.pt")
 
 
 def evaluate_run(run_dir: str | Path, *, episodes: int = 10, split: str | None = None, overrides: dict | None = None,
@@ -44,7 +45,7 @@ def evaluate_run(run_dir: str | Path, *, episodes: int = 10, split: str | None =
 
     from drs_torchrl.envs.factory import make_family_env
     from drs_torchrl.models import PolicyCheckpointError, load_policy
-    from drs_torchrl.rewards import reward_setup
+    from drs_torchrl.rewards import dense_offset, reward_setup
     from drs_torchrl.tasks import family_from_config
 
     run_dir = Path(run_dir)
@@ -63,7 +64,7 @@ def evaluate_run(run_dir: str | Path, *, episodes: int = 10, split: str | None =
     env = make_family_env(
         family, split, seed=seed, variant_overrides=variant_overrides or None, reward_mode=setup.env_reward_mode,
         semi_sparse_reward=setup.semi_sparse, semi_sparse_offset=setup.semi_sparse_offset,
-        control_mode=cfg.env.control_mode, max_episode_steps=cfg.env.max_episode_steps,
+        reward_offset=dense_offset(setup, family), control_mode=cfg.env.control_mode, max_episode_steps=cfg.env.max_episode_steps,
         render_mode="rgb_array" if video_dir else None,
     )
     try:
@@ -92,7 +93,12 @@ def evaluate_run(run_dir: str | Path, *, episodes: int = 10, split: str | None =
                 frames.append(env.base_env.render_frame())  # the final state
             nxt = ep.get("next")
             success = nxt.get("success").reshape(-1)
-            r = reward.reward(nxt) if reward is not None else nxt.get("reward")
+            if reward is None:
+                r = nxt.get("reward")
+            else:  # DrS reads next states; a classifier reward may read (s, a) and takes the transitions
+                from drs_torchrl.transforms.classifier_reward import ClassifierReward
+
+                r = reward.reward(ep if isinstance(reward, ClassifierReward) else nxt)
             row = {"episode": i, "success_once": bool(success.any()), "success_at_end": bool(success[-1]),
                    "stage": int(nxt.get("stage").max()), "length": int(ep.shape[-1]), "return": float(r.sum())}
             if video_dir and frames:

@@ -6,7 +6,7 @@ from collections.abc import Sequence
 
 import torch
 from torchrl.envs import ParallelEnv, SerialEnv, TransformedEnv
-from torchrl.envs.transforms import Transform
+from torchrl.envs.transforms import RewardScaling, Transform
 
 from drs_torchrl.envs.maniskill import ManiSkillEnv
 from drs_torchrl.tasks import TaskFamily
@@ -21,6 +21,7 @@ def make_family_env(
     reward_mode: str = "sparse",
     semi_sparse_reward: bool = False,
     semi_sparse_offset: float | None = None,
+    reward_offset: float = 0.0,
     sim_backend: str = "physx_cpu",
     num_envs: int = 1,
     control_mode: str | None = None,
@@ -33,7 +34,8 @@ def make_family_env(
     """A :class:`~torchrl.envs.TransformedEnv` for ``variant`` of ``family``.
 
     The base env writes the family's indicators; :class:`StageIndicator` adds ``"stage"`` and
-    ``"stage_indicators"``; ``transforms`` (e.g. a frozen :class:`DrSReward`) come after it.
+    ``"stage_indicators"``; ``reward_offset`` (if not 0) shifts the env's reward with TorchRL's
+    :class:`~torchrl.envs.transforms.RewardScaling`; ``transforms`` (e.g. a frozen :class:`DrSReward`) come after.
     ``num_envs > 1`` on the CPU backend batches that many single-env simulators with TorchRL's
     :class:`~torchrl.envs.SerialEnv` (``cpu_batching="serial"``) or
     :class:`~torchrl.envs.ParallelEnv` (``"parallel"``, one process each); on the GPU backend
@@ -77,6 +79,8 @@ def make_family_env(
             semi_sparse_offset=-family.num_stages if semi_sparse_offset is None else semi_sparse_offset,
         ),
     )
+    if reward_offset:
+        env.append_transform(RewardScaling(loc=float(reward_offset), scale=1.0))
     for t in transforms:
         env.append_transform(t)
     if seed is not None:

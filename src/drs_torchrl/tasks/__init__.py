@@ -8,6 +8,8 @@ module of this package (``tasks/pick_cube.py``...), imported at the bottom of th
 """
 from __future__ import annotations
 
+import dataclasses
+
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -152,7 +154,7 @@ def family_from_config(env_cfg) -> TaskFamily:
     defines itself (``env=custom env.family=NAME env.env_id=... env.stage_keys=[...]``), which is
     registered under its name so that checkpoints and reuse find it."""
     if env_cfg.get("env_id") is None:
-        return get_family(env_cfg.family)
+        return with_stages(get_family(env_cfg.family), env_cfg.get("stages"))
     name = str(env_cfg.family)
     if name in _FAMILIES and not _FAMILIES[name].extra.get("from_config"):
         raise ValueError(f"env.family={name!r} is a built-in family; give the family defined in config another name "
@@ -179,7 +181,28 @@ def family_from_config(env_cfg) -> TaskFamily:
         )
     except ValueError as exc:
         raise ValueError(f"env=custom: {exc} (set env.stage_keys, env.variants, env.train_variants, env.test_variants)") from None
-    return register_family(family)
+    return with_stages(register_family(family), env_cfg.get("stages"))
+
+
+def with_stages(family: TaskFamily, stages) -> TaskFamily:
+    """``family`` with only ``stages`` of its stage indicators (``None``: all of them): the paper's stage
+    ablations (Sec. 5.4.1; e.g. ``env.stages=[success]``, "w/o stage indicators"). The dropped
+    indicators stay info keys; the stage index, ``stage_indicators`` and ``N`` follow the subset."""
+    if not stages:
+        return family
+    stages = tuple(str(k) for k in stages)
+    unknown = [k for k in stages if k not in family.stage_keys]
+    if unknown:
+        raise ValueError(f"env.stages names {unknown}, which are not stage indicators of family {family.name!r} "
+                         f"(its stages: {list(family.stage_keys)})")
+    if stages[-1] != family.stage_keys[-1]:
+        raise ValueError(f"env.stages must end with the success indicator {family.stage_keys[-1]!r}, got {list(stages)}")
+    if list(stages) != [k for k in family.stage_keys if k in stages] or len(set(stages)) != len(stages):
+        raise ValueError(f"env.stages must keep the family's order without repeats ({list(family.stage_keys)}), got {list(stages)}")
+    if stages == family.stage_keys:
+        return family
+    return dataclasses.replace(family, stage_keys=stages, info_keys=family.all_info_keys,
+                               extra={**family.extra, "stage_subset_of": list(family.stage_keys)})
 
 
 # one module per family; each registers itself on import

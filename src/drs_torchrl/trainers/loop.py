@@ -26,18 +26,20 @@ from hydra.utils import get_class, instantiate
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDict
 from torchrl.collectors import AsyncCollector, MultiCollector
+from torchrl.data import LazyTensorStorage, ReplayBuffer
 from torchrl.envs.transforms import DeviceCastTransform
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm.auto import tqdm
 
-from drs_torchrl.data import StageBuffers, TrajectoryAssembler
+from drs_torchrl.data import TrajectoryAssembler
 from drs_torchrl.data.persistence import SnapshotError, dump_buffer, load_buffer
 from drs_torchrl.demos import check_demos, load_demos
 from drs_torchrl.envs.factory import make_family_env
-from drs_torchrl.models import POLICY_FORMAT, POLICY_INTERMEDIATE_KEYS, make_sac_modules
-from drs_torchrl.objectives import DiscriminatorLoss
+from drs_torchrl.models import POLICY_FORMAT, POLICY_INTERMEDIATE_KEYS, make_sac_modules, read_policy_checkpoint
 from drs_torchrl.precision import autocast, describe_precision, grad_scaler, resolve_precision
-from drs_torchrl.rewards import new_drs_reward, reward_setup
+from drs_torchrl.rewards import LEARNED, dense_offset, new_reward_learner, reward_setup
+from drs_torchrl.transforms.classifier_reward import ClassifierReward
+from drs_torchrl.transforms.stages import StageIndicator
 from drs_torchrl.run_logger import RunLogger
 from drs_torchrl.tasks import family_from_config
 
@@ -91,7 +93,7 @@ def validate_config(cfg: DictConfig, phase: str) -> None:
         (cfg.eval.episodes >= 0 and cfg.eval.interval > 0, "eval.episodes must be >= 0 and eval.interval > 0"),
         (phase in ("learn", "reuse"), f"phase must be learn or reuse, got {phase}"),
     ]
-    if phase == "learn" and cfg.reward.name == "drs":
+    if phase == "learn" and cfg.reward.name in LEARNED:
         checks.append((cfg.reward.disc.batch_size > 0, "reward.disc.batch_size must be > 0"))
     for ok, msg in checks:
         if not ok:
@@ -160,6 +162,7 @@ class Trainer:
             reward_mode=reward.env_reward_mode,
             semi_sparse_reward=reward.semi_sparse,
             semi_sparse_offset=reward.semi_sparse_offset,
+            reward_offset=dense_offset(reward, family),
             sim_backend=cfg.env.sim_backend,
             num_envs=cfg.env.num_envs,
             cpu_batching=cfg.env.get("cpu_batching", "serial"),
@@ -176,11 +179,15 @@ class Trainer:
             if env.device != self.device:  # e.g. CPU simulation feeding a CUDA learner: data moves at the env edge
                 env.append_transform(DeviceCastTransform(self.device, orig_device=env.device))
         if reward.frozen is not None:
-            reward.frozen.check_compatible(self.env.observation_spec, num_stages=self.num_stages, family=family.name)
+            reward.frozen.check_compatible(self.env.observation_spec, num_stages=self.num_stages, family=family.name,
+                                           action_spec=self.env.action_spec)
             reward.frozen.to(self.device)
             self.env.append_transform(reward.frozen)
             self.eval_env.append_transform(reward.frozen.clone())
-        if phase == "learn" and reward.name == "drs":
+        self.num_demos = 0
+        demos = None
+        self.learner = None  # the reward-learning core (drs_torchrl.learners), phase 1 of a learned reward
+        if phase == "learn" and reward.name in LEARNED:
             split_args = family.env_args(cfg.env.split, env_kwargs["variant_overrides"])  # all variants of a split
             meta = {
                 "family": family.name,
@@ -190,7 +197,19 @@ class Trainer:
                 "stage_keys": list(family.stage_keys),
                 "seed": int(cfg.seed),
             }
-            reward.learned = new_drs_reward(cfg.reward, family, self.env.observation_spec, meta).to(self.device)
+            # a resumed DrS run has its demonstrations in its stage-buffer snapshot (the file is read again only
+            # for demos.sac_share); the classifiers keep theirs apart from their data and read the file again
+            share = float((cfg.get("demos") or {}).get("sac_share") or 0.0)
+            demos = self._demonstrations(cfg, family) if (not resume or reward.name != "drs" or share > 0) else None
+            self.learner = new_reward_learner(
+                cfg.reward, family, self.env, meta, device=self.device,
+                autocast=functools.partial(autocast, self.precision, self.device),
+                # not a bound method: a learner -> trainer reference cycle would keep the collector (and
+                # TorchRL's weight-sync scheme, whose __del__ deadlocks at interpreter exit) alive until then
+                step_fn=functools.partial(backward_and_step, self._grad_scaler),
+                demos=None if (resume and reward.name == "drs") else demos,
+            )
+            reward.learned = self.learner.reward
         self.learned = reward.learned
 
         a = cfg.algo
@@ -208,6 +227,8 @@ class Trainer:
         self.loss.make_value_estimator(gamma=float(a.gamma))
         # algo.compile: the SAC loss's forward (and, through AOTAutograd, its backward) compiled with
         # torch.compile; the module, its parameters and checkpoints stay those of self.loss
+        if cfg.get("init_from") and not resume:  # Sec. 5.4.2: fine-tune a phase-1 agent instead of a fresh one
+            self._init_from(cfg.init_from)
         self._loss_fn = torch.compile(self.loss, **(a.get("compile_kwargs") or {})) if a.get("compile") else self.loss
         self.target_updater = instantiate(a.target_update)(self.loss)
         self.optim_actor = instantiate(a.optim)(list(self.loss.actor_network_params.values(True, True)))
@@ -219,36 +240,13 @@ class Trainer:
         # the actor's intermediate outputs and the collector's bookkeeping are not stored: SACLoss
         # recomputes the former, nothing reads the latter, and every extra key costs at each sample
         self._replay_exclude = (*POLICY_INTERMEDIATE_KEYS, "collector")
-        if self.learned is not None:
-            d = cfg.reward.disc
-            self.stage_buffers = StageBuffers(
-                self.num_stages, self.learned.reward_in_keys, capacity=int(cfg.reward.stage_buffer_size),
-                batch_size=int(d.batch_size), scratch_dir=cfg.reward.get("stage_buffer_scratch_dir"),
-            )
-            self.disc_loss = DiscriminatorLoss(
-                self.learned.discriminators, self.learned.reward_in_keys,
-                early_stop_threshold=d.early_stop_threshold, window=int(d.window), latch=bool(d.get("latch", True)),
-            )
-            self.optim_disc = torch.optim.Adam(self.learned.discriminators.parameters(), lr=float(d.lr),
-                                               fused=bool(d.get("fused", False)))
-            demos = cfg.get("demos") or {}
-            self.num_demos = 0
-            if demos.get("path") and not resume:  # a resumed run has them in its stage-buffer snapshot
-                episodes, meta = load_demos(demos["path"])
-                check_demos(meta, family, self.learned.in_shapes, demos["path"])
-                n = len(episodes) if demos.get("num") is None else int(demos["num"])
-                if n > len(episodes):
-                    raise ConfigError(f"demos.num={n} but {demos['path']} holds only {len(episodes)} demonstrations")
-                for ep in episodes[:n]:
-                    self.stage_buffers.add_trajectory(TensorDict({"next": ep}, batch_size=ep.shape), demo=True)
-                self.num_demos = n
-        else:
-            self.stage_buffers = self.disc_loss = self.optim_disc = None
+        if self.learner is not None:
+            self.learner.attach(self.replay)  # GAIL draws the agent's transitions from it
+        self.demo_replay, self._demo_batch = self._demo_transitions(cfg, demos if self.learner is not None else None)
         self.collector = None  # built by run(): its budget depends on where the run starts
         self.assembler = TrajectoryAssembler()
         self.frames = 0
         self.updates = 0
-        self.disc_updates = 0
         self._owed_updates = 0.0
         self._last_eval_frames = -1
         self.recent: deque = deque(maxlen=int(cfg.logger.episode_window))
@@ -266,23 +264,119 @@ class Trainer:
     # ------------------------------------------------------------------ rewards
     def episode_reward(self, episode) -> torch.Tensor:
         """Reward of an episode's transitions under the reward being trained on (for logging)."""
-        if self.learned is not None:
-            return self.learned.reward(episode.get("next").to(self.device))
-        return episode.get(("next", "reward"))
+        if self.learned is None:
+            return episode.get(("next", "reward"))
+        episode = episode.to(self.device)
+        # DrS reads next states; a classifier reward may read (s, a) and takes whole transitions
+        return self.learned.reward(episode if isinstance(self.learned, ClassifierReward) else episode.get("next"))
 
     # ------------------------------------------------------------------ updates
-    def _disc_step(self) -> TensorDict | None:
-        if self.stage_buffers is None or len(self.stage_buffers) == 0:
+    @property
+    def disc_updates(self) -> int:
+        """Update steps the reward learner has taken (discriminators or classifier)."""
+        return self.learner.updates if self.learner is not None else 0
+
+    def _demonstrations(self, cfg, family) -> list | None:
+        """The episodes of ``demos.path`` (``demos.num`` of them), checked against this task, or None."""
+        demos = cfg.get("demos") or {}
+        if not demos.get("path"):
             return None
-        batch = self.stage_buffers.sample_discriminator_batch().to(self.device)
-        with autocast(self.precision, self.device):
-            out = self.disc_loss(batch)
-        loss = out["loss_discriminator"]
-        if loss.requires_grad:
-            self.optim_disc.zero_grad(set_to_none=True)
-            self._backward_and_step(loss, (self.optim_disc,))
-            self.disc_updates += 1
-        return out.detach()
+        episodes, meta = load_demos(demos["path"])
+        if list(meta["stage_keys"]) != list(family.stage_keys) and set(family.stage_keys) <= set(meta["stage_keys"]):
+            # a stage ablation (env.stages): the demonstrations keep every indicator, so relabel them
+            labeller = StageIndicator(family.stage_keys)
+            episodes = [labeller(ep.clone()) for ep in episodes]
+            meta = {**meta, "stage_keys": list(family.stage_keys),
+                    "shapes": {**meta["shapes"], "stage_indicators": family.num_stages}}
+        in_keys = list(cfg.reward.get("in_keys") or family.reward_in_keys)
+        spec = self.env.observation_spec
+        check_demos(meta, family, {k: int(spec[k].shape[-1]) for k in in_keys if k in spec.keys(True, True)}, demos["path"])
+        n = len(episodes) if demos.get("num") is None else int(demos["num"])
+        if n > len(episodes):
+            raise ConfigError(f"demos.num={n} but {demos['path']} holds only {len(episodes)} demonstrations")
+        if cfg.reward.get("use_action"):  # (s, a) rewards need the agent's own actions
+            acts = meta.get("actions")
+            mode = cfg.env.control_mode or family.env_args(cfg.env.split).get("control_mode") or family.control_mode
+            if acts is None:
+                raise ConfigError(f"reward={cfg.reward.name} reads (s, a), but {demos['path']} holds states only (planner "
+                                  "demonstrations, or recorded before actions were kept); record demonstrations with "
+                                  "drs-demos --from-policy RUN_DIR, or use reward.use_action=false")
+            if acts["control_mode"] != mode or int(acts["size"]) != int(self.env.action_spec.shape[-1]):
+                raise ConfigError(f"the actions in {demos['path']} are {acts['size']}-dimensional {acts['control_mode']} "
+                                  f"commands; this run acts with {int(self.env.action_spec.shape[-1])}-dimensional {mode}")
+        self.num_demos = n
+        return episodes[:n]
+
+    def _init_from(self, run_dir) -> None:
+        """Start from the actor, twin critics (and their targets) and entropy coefficient of another
+        run's ``checkpoints/policy.pt`` (fine-tuning, Sec. 5.4.2); optimisers and replay start fresh."""
+        file, ck = read_policy_checkpoint(run_dir)
+        problems = []
+        if ck.get("family") != self.family.name:
+            problems.append(f"it is a policy for family {ck.get('family')!r}, this run is {self.family.name!r}")
+        if list(ck["policy_in_keys"]) != list(self.cfg.algo.policy_in_keys) or list(ck["hidden"]) != list(self.cfg.algo.hidden):
+            problems.append(f"its networks read {ck['policy_in_keys']} with hidden {ck['hidden']}, this run's read "
+                            f"{list(self.cfg.algo.policy_in_keys)} with hidden {list(self.cfg.algo.hidden)}")
+        if "qvalue_params" not in ck:
+            problems.append("it holds no critics")
+        if not problems:
+            try:
+                self.actor.load_state_dict(ck["actor"])
+                q = TensorDict(ck["qvalue_params"]).to(self.device)
+                self.loss.qvalue_network_params.data.update_(q)
+                self.loss.target_qvalue_network_params.data.update_(q)
+                if "log_alpha" in ck:
+                    self.loss.log_alpha.data.copy_(torch.as_tensor(ck["log_alpha"]))
+            except (RuntimeError, KeyError) as exc:
+                problems.append(f"its sizes do not fit this env: {str(exc).splitlines()[0]}")
+        if problems:
+            raise ConfigError(f"init_from={run_dir}: cannot fine-tune from {file}: " + "; ".join(problems))
+        self.init_from = str(file)
+
+    def _demo_transitions(self, cfg, demos):
+        """RLPD-style share of demonstrations in every SAC batch (``demos.sac_share``): a replay buffer of
+        the demonstrations' transitions, whose rewards the learned reward recomputes at sampling like
+        every other sample's. Returns ``(buffer, transitions per SAC batch)`` or ``(None, 0)``."""
+        share = float((cfg.get("demos") or {}).get("sac_share") or 0.0)
+        if share <= 0:
+            return None, 0
+        if not 0 < share < 1:
+            raise ConfigError(f"demos.sac_share must be in [0, 1), got {share}")
+        if self.learner is None or not demos:
+            raise ConfigError("demos.sac_share needs demonstrations (demos.path) and a reward learned in this run "
+                              "(drs-learn reward=drs|vice_raq|oril|gail), which rewards them at sampling")
+        if "action" not in demos[0].keys() or "state" not in demos[0].keys():
+            raise ConfigError(f"demos.sac_share: {cfg.demos.path} holds states only; SAC needs the agent's actions and "
+                              "the states they were taken in (drs-demos --from-policy records them)")
+        root_keys = [k for k in self.loss.in_keys if isinstance(k, str) and k != "action"]
+        next_keys = list(dict.fromkeys([*root_keys, *self.learned.reward_in_keys, "stage"]))
+        rows = []
+        for ep in demos:
+            T = ep.shape[0]
+            ends = torch.zeros(T, 1, dtype=torch.bool)
+            ends[-1] = bool(ep["success"][-1])  # demonstrations end on success
+            nxt = TensorDict({k: ep.get(k) for k in next_keys}, batch_size=[T])
+            nxt.update({"reward": torch.zeros(T, 1), "done": ends.clone(), "terminated": ends.clone(),
+                        "truncated": torch.zeros(T, 1, dtype=torch.bool)})
+            missing = [k for k in root_keys if k not in ep.get("state").keys()]
+            if missing:
+                raise ConfigError(f"demos.sac_share: the demonstrations' states lack {missing}, which SAC reads")
+            rows.append(TensorDict({**{k: ep.get("state").get(k) for k in root_keys}, "action": ep.get("action"),
+                                    "next": nxt}, batch_size=[T]))
+        buffer = ReplayBuffer(storage=LazyTensorStorage(sum(r.shape[0] for r in rows), device=self.device),
+                              transform=self.learned)
+        buffer.extend(torch.cat(rows, 0).to(self.device))
+        n = max(1, round(share * int(cfg.algo.batch_size)))
+        return buffer, n
+
+    def sac_batch(self) -> TensorDict:
+        """One SAC batch from the replay buffer (and the demonstrations' share), rewards recomputed."""
+        if self.demo_replay is None:
+            return self.replay.sample().to(self.device)
+        B, n = int(self.cfg.algo.batch_size), self._demo_batch
+        demo = self.demo_replay.sample(n)
+        agent = self.replay.sample(B - n).to(self.device).select(*demo.keys(True, True))
+        return torch.cat([agent, demo.to(self.device)], 0)
 
     # --------------------------------------------------------------- evaluation
     def evaluate(self) -> dict[str, float]:
@@ -303,8 +397,8 @@ class Trainer:
         """The user-facing checkpoints: the learned reward (phase 1) and the policy."""
         ck = self.run_dir / "checkpoints"
         paths = {}
-        if self.learned is not None:
-            paths["reward"] = str(self.learned.save(ck / "reward.pt", frames=self.frames, phase=self.phase))
+        if self.learner is not None:
+            paths["reward"] = str(self.learner.save_reward(ck / "reward.pt", frames=self.frames, phase=self.phase))
         policy = {
             "format": POLICY_FORMAT,
             "version": 1,
@@ -316,16 +410,14 @@ class Trainer:
             # SACLoss trains its own stacked copies of the critics (one per Q-net), not self.qvalue
             "qvalue_params": self.loss.qvalue_network_params.data.cpu().to_dict(),
             "num_qvalue_nets": int(self.loss.num_qvalue_nets),
+            "log_alpha": self.loss.log_alpha.detach().cpu(),
         }
         atomic_torch_save(policy, ck / "policy.pt")
         paths["policy"] = str(ck / "policy.pt")
         return paths
 
     def _optimizers(self) -> dict[str, torch.optim.Optimizer]:
-        opts = {"actor": self.optim_actor, "critic": self.optim_critic, "alpha": self.optim_alpha}
-        if self.optim_disc is not None:
-            opts["discriminator"] = self.optim_disc
-        return opts
+        return {"actor": self.optim_actor, "critic": self.optim_critic, "alpha": self.optim_alpha}
 
     def save_training_state(self) -> Path:
         """Everything needed to continue the run, written atomically to ``checkpoints/state``.
@@ -355,15 +447,13 @@ class Trainer:
             },
             "loss": self.loss.state_dict(),
             "optimizers": {k: o.state_dict() for k, o in self._optimizers().items()},
-            "reward": self.learned.state_dict() if self.learned is not None else None,
-            "disc_loss": self.disc_loss.state_dict() if self.disc_loss is not None else None,
+            "learner": self.learner.state_dict() if self.learner is not None else None,
             "recent_episodes": list(self.recent),
             "rng": {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()},
         }
         dump_buffer(self.replay, tmp / "replay")
-        if self.stage_buffers is not None:
-            dump_buffer(self.stage_buffers, tmp / "stage_buffers")
-            payload["stage_buffer_episodes"] = self.stage_buffers.episodes_per_stage.tolist()
+        if self.learner is not None:
+            self.learner.dump_buffers(tmp)
         torch.save(payload, tmp / "trainer.pt")
         (tmp / "COMPLETE").write_text(str(self.frames))
         # swap in: at every instant one complete state exists (final, else old)
@@ -387,18 +477,22 @@ class Trainer:
         if payload["phase"] != self.phase:
             raise TrainingStateError(f"{self.run_dir} is a drs-{payload['phase']} run; resume it with drs-{payload['phase']}")
         c = payload["counters"]
-        self.frames, self.updates, self.disc_updates = int(c["frames"]), int(c["updates"]), int(c["disc_updates"])
+        self.frames, self.updates = int(c["frames"]), int(c["updates"])
         self._owed_updates, self._last_eval_frames = float(c["owed_updates"]), int(c["last_eval_frames"])
         self.loss.load_state_dict(payload["loss"])
         opts = self._optimizers()
         for k, sd in payload["optimizers"].items():
-            opts[k].load_state_dict(sd)
+            if k in opts:
+                opts[k].load_state_dict(sd)
         try:
-            if self.learned is not None:
-                self.learned.load_state_dict(payload["reward"])
-                self.disc_loss.load_state_dict(payload["disc_loss"])
-                load_buffer(self.stage_buffers, state_dir / "stage_buffers")
-                self.stage_buffers.episodes_per_stage = np.asarray(payload["stage_buffer_episodes"], dtype=np.int64)
+            if self.learner is not None:
+                state = payload.get("learner")
+                if state is None:  # written before the reward learners existed: a DrS run's parts at the top level
+                    state = {"reward": payload["reward"], "disc_loss": payload["disc_loss"], "updates": int(c["disc_updates"]),
+                             "optimizers": {"discriminator": payload["optimizers"]["discriminator"]},
+                             "stage_buffer_episodes": payload["stage_buffer_episodes"]}
+                self.learner.load_state_dict(state)
+                self.learner.load_buffers(state_dir)
             load_buffer(self.replay, state_dir / "replay")
         except (SnapshotError, OSError, KeyError, RuntimeError) as exc:
             raise TrainingStateError(f"the training state in {state_dir} is damaged: {exc}") from exc
@@ -474,9 +568,11 @@ class Trainer:
         next_eval = (self.frames // eval_every + 1) * eval_every
         next_ckpt = (self.frames // ckpt_every + 1) * ckpt_every
         summary: dict[str, Any] = {"phase": self.phase, "run_dir": str(self.run_dir), "resumed_from": self.resumed_from,
-                                   "precision": self.precision}
+                                   "precision": self.precision, "init_from": cfg.get("init_from")}
         tqdm.write(f"drs-{self.phase}: {describe_precision(self.precision, self.device)}")
         remaining = total - self.frames
+        if self.learner is not None and self.frames == 0 and self.resumed_from is None:
+            self.learner.prepare(self.env)  # e.g. ORIL's offline classifier, before the first env step
         if remaining > 0:
             self.collector = self.make_collector(remaining)
             if self.collects_in_background and not self.env.is_closed:
@@ -519,9 +615,8 @@ class Trainer:
                 episodes = self.assembler.add(batch)
                 if episodes:
                     self.recent.extend(episode_summary(ep, self.episode_reward) for ep in episodes)
-                    if self.stage_buffers is not None:
-                        stages = [self.stage_buffers.add_trajectory(ep) for ep in episodes]
-                        self.disc_loss.record_episodes(stages)
+                if self.learner is not None:  # DrS files the episodes by stage; VICE-RAQ labels every state
+                    self.learner.observe(batch, episodes)
 
                 tu = time.perf_counter()
                 if self.frames >= int(a.learning_starts) and len(self.replay) >= int(a.batch_size):
@@ -529,11 +624,10 @@ class Trainer:
                     k = int(self._owed_updates)
                     self._owed_updates -= k
                     for _ in range(k):
-                        if self.stage_buffers is not None:
-                            for _ in range(int(cfg.reward.disc.updates_per_sac_update)):
-                                d = self._disc_step()
-                                if d is not None:
-                                    disc_stats.append(d)
+                        if self.learner is not None:
+                            d = self.learner.update()
+                            if d is not None:
+                                disc_stats.append(d)
                         out, r = self._sac_step()
                         sac_stats.append(out)
                         rewards.append(r)
@@ -601,15 +695,14 @@ class Trainer:
             frames=self.frames, updates=self.updates, disc_updates=self.disc_updates,
             wall_time_s=elapsed, env_steps_per_s=(self.frames - frames0) / max(elapsed, 1e-9), interrupted=interrupted,
         )
-        if self.stage_buffers is not None:
-            summary["stage_buffer_transitions"] = self.stage_buffers.stage_counts().tolist()
-            summary["stage_buffer_episodes"] = self.stage_buffers.episodes_per_stage.tolist()
+        if self.learner is not None:
+            summary.update(self.learner.summary())
         atomic_write_text(self.run_dir / "summary.json", json.dumps(summary, indent=2))
         self.close()
         return summary
 
     def _sac_step(self) -> tuple[TensorDict, torch.Tensor]:
-        sample = self.replay.sample().to(self.device)  # the learned reward is recomputed here, in fp32
+        sample = self.sac_batch()  # the learned reward is recomputed here, in fp32
         with autocast(self.precision, self.device):
             out = self._loss_fn(sample)
         total = out["loss_actor"] + out["loss_qvalue"] + out["loss_alpha"]
@@ -624,15 +717,7 @@ class Trainer:
 
     def _backward_and_step(self, loss: torch.Tensor, optimizers) -> None:
         """Backward pass and optimiser steps, through the fp16 gradient scaler when there is one."""
-        if self._grad_scaler is None:
-            loss.backward()
-            for opt in optimizers:
-                opt.step()
-            return
-        self._grad_scaler.scale(loss).backward()
-        for opt in optimizers:
-            self._grad_scaler.step(opt)
-        self._grad_scaler.update()
+        backward_and_step(self._grad_scaler, loss, optimizers)
 
     def _train_row(self, sac_stats, disc_stats, rewards, frames, updates, dt, t_collect, t_update) -> dict[str, float]:
         row: dict[str, float] = {
@@ -660,11 +745,8 @@ class Trainer:
             st = torch.stack(disc_stats)
             for k in st.keys():
                 row[f"disc_{k}"] = float(st[k].float().mean())
-        if self.stage_buffers is not None:
-            for s, c in enumerate(self.stage_buffers.stage_counts()):
-                row[f"stage_buffer_{s}"] = float(c)
-            for k, v in enumerate(self.disc_loss.beyond_rates().tolist()):
-                row[f"beyond_rate_{k}"] = v
+        if self.learner is not None:
+            row.update(self.learner.log_row())
         return row
 
     def close(self) -> None:
@@ -675,9 +757,23 @@ class Trainer:
                 self.collector.shutdown()
             except Exception:
                 pass
+            self.collector = None  # freed now, not at interpreter exit (see step_fn above)
         for env in (self.env, self.eval_env):
             if env is not None and not env.is_closed:
                 env.close()
+
+
+def backward_and_step(grad_scaler, loss: torch.Tensor, optimizers) -> None:
+    """Backward pass and optimiser steps, through an fp16 gradient scaler when there is one."""
+    if grad_scaler is None:
+        loss.backward()
+        for opt in optimizers:
+            opt.step()
+        return
+    grad_scaler.scale(loss).backward()
+    for opt in optimizers:
+        grad_scaler.step(opt)
+    grad_scaler.update()
 
 
 class TrainingStateError(RuntimeError):

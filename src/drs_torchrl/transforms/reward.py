@@ -214,85 +214,127 @@ class DrSReward(Transform):
             "reward_key": self.reward_key,
             "normalization": None,
             "metadata": dict(self.metadata),
+            "kind": "drs",
         }
 
     # ------------------------------------------------------------ checkpoints
     def save(self, path: str | os.PathLike, **extra_metadata) -> Path:
         """Write a self-describing checkpoint atomically (a crash never leaves a partial file)."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
         desc = self.description()
         desc["metadata"].update(extra_metadata)
-        payload = {
-            "format": CHECKPOINT_FORMAT,
-            "version": CHECKPOINT_VERSION,
-            "config": desc,
-            "state_dict": {k: v.detach().cpu() for k, v in self.discriminators.state_dict().items()},
-        }
-        fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
-        os.close(fd)
-        try:
-            torch.save(payload, tmp)
-            os.replace(tmp, path)
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-        return path
+        return write_reward_checkpoint(path, desc, self.discriminators.state_dict())
 
     @classmethod
     def from_checkpoint(cls, path: str | os.PathLike, map_location: str | torch.device = "cpu") -> "DrSReward":
         """Load a reward saved by :meth:`save`; raises :class:`RewardCheckpointError` with the cause."""
-        path = Path(path)
-        if not path.is_file():
-            raise RewardCheckpointError(f"reward checkpoint {path} does not exist (pass reward.checkpoint=PATH to a reward.pt written by drs-learn)")
-        try:
-            payload = torch.load(path, map_location=map_location, weights_only=True)
-        except Exception as exc:
-            raise RewardCheckpointError(f"{path} is not a readable checkpoint (corrupt or truncated?): {exc}") from exc
-        if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
-            raise RewardCheckpointError(
-                f"{path} is not a drs-torchrl reward checkpoint (format={payload.get('format') if isinstance(payload, dict) else type(payload).__name__!r}); "
-                "a policy or training-state checkpoint cannot be used as a reward"
-            )
-        if int(payload.get("version", -1)) > CHECKPOINT_VERSION:
-            raise RewardCheckpointError(
-                f"{path} has checkpoint format version {payload['version']}, newer than this drs-torchrl "
-                f"understands ({CHECKPOINT_VERSION}); upgrade drs-torchrl"
-            )
+        payload = read_reward_checkpoint(path, map_location)
+        if payload["config"].get("kind", "drs") != "drs":
+            raise RewardCheckpointError(f"{path} holds a {payload['config']['kind']!r} reward, not a DrS reward; load it with load_reward()")
         c = payload["config"]
         reward = cls(
             c["num_stages"], c["in_keys"], c["in_shapes"], stage_key=c["stage_key"], formula=c["formula"],
             alpha=c["alpha"], offset=c["offset"], hidden=c["hidden"], activation=c["activation"],
             reward_key=c.get("reward_key", "reward"), metadata=c.get("metadata"),
         )
-        bad = [k for k, v in payload["state_dict"].items() if not torch.isfinite(v).all()]
-        if bad:
-            raise RewardCheckpointError(f"{path} holds non-finite (NaN/inf) discriminator weights in {bad}: it was saved from a diverged run")
-        try:
-            reward.discriminators.load_state_dict(payload["state_dict"])
-        except RuntimeError as exc:
-            raise RewardCheckpointError(f"{path}: discriminator weights do not match its own description: {exc}") from exc
+        load_checked(reward.discriminators, payload["state_dict"], path)
         return reward.to(map_location)
 
-    def check_compatible(self, observation_spec, *, num_stages: int | None = None, family: str | None = None) -> None:
+    def check_compatible(self, observation_spec, *, num_stages: int | None = None, family: str | None = None,
+                         action_spec=None) -> None:
         """Raise :class:`RewardCheckpointError` naming every difference between this reward and an env."""
-        problems = []
-        mine = self.metadata.get("family")
-        if family is not None and mine is not None and mine != family:
-            problems.append(f"it was learned on task family {mine!r}, the env is family {family!r}")
-        if num_stages is not None and num_stages != self.num_stages:
-            problems.append(f"it has {self.num_stages} stages, the env's family has {num_stages}")
-        keys = set(observation_spec.keys(True, True))
-        for k, dim in self.in_shapes.items():
-            if k not in keys:
-                problems.append(f"it reads {k!r}, which the env does not produce")
-            elif int(observation_spec[k].shape[-1]) != dim:
-                problems.append(f"it reads {k!r} of size {dim}, the env's {k!r} has size {int(observation_spec[k].shape[-1])}")
-        if self.stage_key not in keys:
-            problems.append(f"it needs the stage index {self.stage_key!r} (add a StageIndicator transform)")
+        problems = compatibility_problems(self.metadata, self.in_shapes, self.num_stages, self.stage_key,
+                                          observation_spec, num_stages=num_stages, family=family, action_spec=action_spec)
         if problems:
             raise RewardCheckpointError("the reward does not fit this environment: " + "; ".join(problems))
 
     def __repr__(self) -> str:
         return (f"{type(self).__name__}(num_stages={self.num_stages}, in_keys={self.reward_in_keys}, "
                 f"formula={self.formula!r}, alpha={self.alpha:.4g})")
+
+
+# ---------------------------------------------------------------- shared by every learned reward
+def write_reward_checkpoint(path: str | os.PathLike, config: dict, state_dict: Mapping[str, torch.Tensor]) -> Path:
+    """Write ``{format, version, config, state_dict}`` atomically (a crash never leaves a partial file)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "config": config,
+               "state_dict": {k: v.detach().cpu() for k, v in state_dict.items()}}
+    fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        torch.save(payload, tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path
+
+
+def read_reward_checkpoint(path: str | os.PathLike, map_location="cpu") -> dict:
+    """The payload of a reward checkpoint; raises :class:`RewardCheckpointError` with the cause."""
+    path = Path(path)
+    if not path.is_file():
+        raise RewardCheckpointError(f"reward checkpoint {path} does not exist (pass reward.checkpoint=PATH to a reward.pt written by drs-learn)")
+    try:
+        payload = torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as exc:
+        raise RewardCheckpointError(f"{path} is not a readable checkpoint (corrupt or truncated?): {exc}") from exc
+    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
+        raise RewardCheckpointError(
+            f"{path} is not a drs-torchrl reward checkpoint (format={payload.get('format') if isinstance(payload, dict) else type(payload).__name__!r}); "
+            "a policy or training-state checkpoint cannot be used as a reward"
+        )
+    if int(payload.get("version", -1)) > CHECKPOINT_VERSION:
+        raise RewardCheckpointError(
+            f"{path} has checkpoint format version {payload['version']}, newer than this drs-torchrl "
+            f"understands ({CHECKPOINT_VERSION}); upgrade drs-torchrl"
+        )
+    return payload
+
+
+def load_checked(module: nn.Module, state_dict: Mapping[str, torch.Tensor], path) -> None:
+    bad = [k for k, v in state_dict.items() if not torch.isfinite(v).all()]
+    if bad:
+        raise RewardCheckpointError(f"{path} holds non-finite (NaN/inf) weights in {bad}: it was saved from a diverged run")
+    try:
+        module.load_state_dict(state_dict)
+    except RuntimeError as exc:
+        raise RewardCheckpointError(f"{path}: the weights do not match the checkpoint's own description: {exc}") from exc
+
+
+def compatibility_problems(metadata: Mapping, in_shapes: Mapping[str, int], num_stages_mine: int, stage_key: str | None,
+                           observation_spec, *, num_stages=None, family=None, action_spec=None,
+                           action_dim: int | None = None) -> list[str]:
+    """Every difference between a learned reward's inputs and an env, in words."""
+    problems = []
+    mine = metadata.get("family")
+    if family is not None and mine is not None and mine != family:
+        problems.append(f"it was learned on task family {mine!r}, the env is family {family!r}")
+    if num_stages is not None and num_stages != num_stages_mine:
+        learned_with = metadata.get("stage_keys")
+        hint = f" (it was learned with env.stages=[{','.join(learned_with)}]: pass the same)" if learned_with else ""
+        problems.append(f"it has {num_stages_mine} stages, the env's family has {num_stages}{hint}")
+    keys = set(observation_spec.keys(True, True))
+    for k, dim in in_shapes.items():
+        if k not in keys:
+            problems.append(f"it reads {k!r}, which the env does not produce")
+        elif int(observation_spec[k].shape[-1]) != dim:
+            problems.append(f"it reads {k!r} of size {dim}, the env's {k!r} has size {int(observation_spec[k].shape[-1])}")
+    if stage_key is not None and stage_key not in keys:
+        problems.append(f"it needs the stage index {stage_key!r} (add a StageIndicator transform)")
+    if action_dim is not None and action_spec is not None and int(action_spec.shape[-1]) != action_dim:
+        problems.append(f"it reads actions of size {action_dim}, the env's actions have size {int(action_spec.shape[-1])}")
+    return problems
+
+
+def load_reward(path: str | os.PathLike, map_location="cpu") -> Transform:
+    """Any learned reward written by ``drs-learn`` (DrS, or a baseline's classifier), ready to reuse."""
+    payload = read_reward_checkpoint(path, map_location)
+    kind = payload["config"].get("kind", "drs")
+    if kind == "drs":
+        return DrSReward.from_checkpoint(path, map_location)
+    if kind == "classifier":
+        from drs_torchrl.transforms.classifier_reward import ClassifierReward
+
+        return ClassifierReward.from_checkpoint(path, map_location)
+    raise RewardCheckpointError(f"{path} holds a reward of kind {kind!r}, which this drs-torchrl does not know")

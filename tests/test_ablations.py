@@ -1,0 +1,67 @@
+"""The paper's ablations as configs (Sec. 5.4.1, Appendix F): stage subsets, placed thresholds, sum of tanh."""
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from torchrl.envs.utils import check_env_specs
+
+from drs_torchrl.tasks import family_from_config, get_family, with_stages
+from drs_torchrl.trainers.apps import conf_dir
+from drs_torchrl.transforms import DrSReward, RewardCheckpointError
+
+
+def cfg(*overrides, app="learn"):
+    with initialize_config_dir(config_dir=conf_dir(), version_base=None):
+        return compose(app, overrides=list(overrides))
+
+
+def test_stage_subsets_keep_order_and_end_with_success():
+    pnp = get_family("pick_and_place")
+    two = with_stages(pnp, ["is_obj_placed", "success"])
+    assert two.stage_keys == ("is_obj_placed", "success") and two.num_stages == 2
+    assert "is_grasped" in two.all_info_keys  # still copied from the env's info, just not a stage
+    assert with_stages(pnp, None) is pnp and with_stages(pnp, list(pnp.stage_keys)) is pnp
+    with pytest.raises(ValueError, match="end with the success indicator 'success'"):
+        with_stages(pnp, ["is_grasped"])
+    with pytest.raises(ValueError, match="is_lifted.*not stage indicators"):
+        with_stages(pnp, ["is_lifted", "success"])
+    with pytest.raises(ValueError, match="keep the family's order"):
+        with_stages(pnp, ["is_obj_placed", "is_grasped", "success"])
+
+
+@pytest.mark.parametrize("ablation,env,check", [
+    ("one_stage", "turn_valve", lambda c, f: f.stage_keys == ("success",)),
+    ("pnp_grasped_success", "pick_and_place", lambda c, f: f.stage_keys == ("is_grasped", "success")),
+    ("pnp_placed_success", "pick_and_place", lambda c, f: f.stage_keys == ("is_obj_placed", "success")),
+    ("placed_2_5cm", "pick_and_place", lambda c, f: c.env.variant_overrides.goal_thresh == 0.025),
+    ("placed_5cm", "pick_and_place", lambda c, f: c.env.variant_overrides.goal_thresh == 0.05),
+    ("placed_10cm", "pick_and_place", lambda c, f: c.env.variant_overrides.goal_thresh == 0.10),
+    ("sum_of_tanh", "pick_and_place", lambda c, f: c.reward.formula == "sum" and f.num_stages == 3),
+])
+def test_each_ablation_is_one_config(ablation, env, check):
+    for app in ("learn", "reuse"):
+        c = cfg(f"env={env}", f"+ablation={ablation}", app=app)
+        assert check(c, family_from_config(c.env)), (ablation, app)
+
+
+@pytest.mark.sim
+def test_one_stage_env_and_reward_and_the_reuse_hint(tmp_path):
+    from drs_torchrl.envs.factory import make_family_env
+
+    one = with_stages(get_family("turn_valve"), ["success"])
+    env = make_family_env(one, "test", seed=0)
+    try:
+        assert env.observation_spec["stage_indicators"].shape[-1] == 1
+        check_env_specs(env)
+        td = env.rollout(5)
+        assert int(td["next", "stage"].max()) <= 1
+        reward = DrSReward.from_spec(env.observation_spec, 1, ["observation", "stage_indicators"],
+                                     metadata={"family": "turn_valve", "stage_keys": ["success"]})
+        path = reward.save(tmp_path / "one.pt")
+    finally:
+        env.close()
+    full = make_family_env(get_family("turn_valve"), "test", seed=0)
+    try:
+        with pytest.raises(RewardCheckpointError, match=r"1 stages, the env's family has 2 \(it was learned with env.stages=\[success\]"):
+            DrSReward.from_checkpoint(path).check_compatible(full.observation_spec, num_stages=2, family="turn_valve")
+    finally:
+        full.close()

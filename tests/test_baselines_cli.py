@@ -1,0 +1,214 @@
+"""Every learned baseline through drs-learn and drs-reuse at tiny budgets (real MuJoCo HalfCheetah, whose
+one stage a tiny return threshold makes reachable), resume of a classifier run, and the demo checks."""
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from drs_torchrl.transforms import ClassifierReward, load_reward
+
+pytestmark = [pytest.mark.sim, pytest.mark.slow]
+BIN = Path(sys.executable).parent
+TINY = [
+    "env=half_cheetah", "env.max_episode_steps=100", "env.variant_overrides.success_return=1.0",
+    "total_frames=384", "algo.learning_starts=128", "algo.batch_size=32", "algo.hidden=[32,32]",
+    "reward.disc.batch_size=16", "logger.interval=128", "eval.interval=100000", "eval.episodes=1",
+    "checkpoint_interval=100000", "logger.progress_bar=false", "logger.tensorboard=false",
+    "algo.collector._target_=torchrl.collectors.Collector",
+]
+
+
+def _run(cmd, *args, cwd):
+    env = dict(os.environ, PYTHONWARNINGS="ignore", OMP_NUM_THREADS="1")
+    return subprocess.run([str(BIN / cmd), *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=600, check=False)
+
+
+@pytest.fixture(scope="module")
+def demos(tmp_path_factory):
+    """Demonstrations with actions, recorded from a (random-init) SAC policy whose episodes pass the threshold."""
+    from omegaconf import OmegaConf
+
+    from drs_torchrl.demos import record_policy_demos, save_demos
+    from drs_torchrl.envs.factory import make_family_env
+    from drs_torchrl.models import POLICY_FORMAT, make_sac_modules
+    from drs_torchrl.tasks import get_family
+
+    d = tmp_path_factory.mktemp("demos")
+    torch.manual_seed(0)
+    env = make_family_env(get_family("half_cheetah"), "train", seed=0, max_episode_steps=100)
+    actor, _ = make_sac_modules(env.observation_spec, env.action_spec, ["observation", "stage_indicators"], [32, 32])
+    env.close()
+    (d / "run" / "checkpoints").mkdir(parents=True)
+    torch.save({"format": POLICY_FORMAT, "version": 1, "frames": 0, "family": "half_cheetah",
+                "policy_in_keys": ["observation", "stage_indicators"], "hidden": [32, 32], "actor": actor.state_dict()},
+               d / "run" / "checkpoints" / "policy.pt")
+    OmegaConf.save(OmegaConf.create({"env": {"family": "half_cheetah", "split": "train", "max_episode_steps": 100,
+                                             "variant_overrides": {"success_return": 0.0}}}), d / "run" / "config.yaml")
+    states, meta = record_policy_demos(d / "run", None, 4, seed=1, deterministic=False, max_episodes=400, progress=False)
+    assert "action" in states.keys() and "state" in states.keys() and meta["actions"]["size"] == 6
+    return save_demos(states, meta, d / "hc.demos")
+
+
+@pytest.mark.parametrize("method,extra", [
+    ("vice_raq", []),
+    ("oril", ["reward.random_episodes=2", "reward.offline_updates=20"]),
+    ("gail", []),
+])
+def test_each_learned_baseline_learns_and_is_reused(tmp_path, demos, method, extra):
+    learn = tmp_path / "learn"
+    args = [*TINY, f"reward={method}", *extra, f"hydra.run.dir={learn}", "seed=1"]
+    if method != "vice_raq":
+        args.append(f"demos.path={demos}")
+    p = _run("drs-learn", *args, cwd=tmp_path)
+    assert p.returncode == 0, p.stderr[-3000:]
+    summary = json.loads((learn / "summary.json").read_text())
+    assert summary["updates"] > 0
+    ck = learn / "checkpoints" / "reward.pt"
+    reward = load_reward(ck)
+    assert isinstance(reward, ClassifierReward) and reward.method == method
+    assert reward.metadata["family"] == "half_cheetah" and reward.use_action == (method == "gail")
+    if method == "oril":
+        assert summary["offline_updates"] == 20 and summary["classifier_negatives"] > 0
+        assert bool(reward.classifier.trained)
+    if method == "vice_raq":
+        assert summary["classifier_positives"] + summary["classifier_negatives"] == summary["frames"]
+    # reuse: the frozen classifier (gail also as gail_stages, with the semi-sparse term)
+    for name in [method] + (["gail_stages"] if method == "gail" else []):
+        out = tmp_path / f"reuse_{name}"
+        p = _run("drs-reuse", *TINY, f"reward={name}", f"reward.checkpoint={ck}", "env.split=test",
+                 f"hydra.run.dir={out}", cwd=tmp_path)
+        assert p.returncode == 0, p.stderr[-3000:]
+        assert json.loads((out / "summary.json").read_text())["updates"] > 0
+
+
+@pytest.mark.parametrize("method", ["vice_raq", "oril"])
+def test_a_classifier_run_resumes_with_its_data(tmp_path, demos, method):
+    run = tmp_path / method
+    extra = [f"demos.path={demos}", "reward.random_episodes=2", "reward.offline_updates=5"] if method == "oril" else []
+    p = _run("drs-learn", *TINY, f"reward={method}", *extra, f"hydra.run.dir={run}", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr[-3000:]
+    first = json.loads((run / "summary.json").read_text())
+    state = torch.load(run / "checkpoints" / "state" / "trainer.pt", weights_only=False)
+    assert state["learner"]["updates"] == first["disc_updates"]
+    p = _run("drs-learn", f"resume={run}", "total_frames=512", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr[-3000:]
+    second = json.loads((run / "summary.json").read_text())
+    assert second["frames"] == 512 and second["disc_updates"] >= first["disc_updates"]
+    if method == "vice_raq":  # the classifier's data came back: every state of both parts is labelled
+        assert second["classifier_positives"] + second["classifier_negatives"] == 512
+    else:  # ORIL's offline data came back once, not twice, and it did not train again
+        assert second["classifier_positives"] == first["classifier_positives"]
+        assert second["classifier_negatives"] == first["classifier_negatives"] and second["disc_updates"] == 5
+
+
+def test_gail_demonstrations_must_carry_the_agents_actions(tmp_path, demos):
+    from drs_torchrl.demos import load_demos, save_demos
+
+    episodes, meta = load_demos(demos)
+    states_only = torch.cat(episodes).exclude("action", "state")
+    meta = {k: v for k, v in meta.items() if k != "actions"}
+    path = save_demos(states_only, meta, tmp_path / "states_only.demos")
+    p = _run("drs-learn", *TINY, "reward=gail", f"demos.path={path}", f"hydra.run.dir={tmp_path / 'a'}", cwd=tmp_path)
+    assert p.returncode != 0 and "holds states only" in p.stderr and "drs-demos --from-policy" in p.stderr
+    p = _run("drs-learn", *TINY, "reward=gail", "reward.use_action=false", f"demos.path={path}",
+             f"hydra.run.dir={tmp_path / 'b'}", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr[-3000:]
+    assert not load_reward(tmp_path / "b" / "checkpoints" / "reward.pt").use_action
+    p = _run("drs-learn", *TINY, "reward=oril", f"hydra.run.dir={tmp_path / 'c'}", cwd=tmp_path)
+    assert p.returncode != 0 and "demos.path" in p.stderr
+    shutil.rmtree(tmp_path / "c", ignore_errors=True)
+
+
+def test_fine_tuning_starts_from_the_phase1_agent(tmp_path):
+    """Sec. 5.4.2: init_from=RUN_DIR starts phase 2 from that run's actor, critics and entropy coefficient."""
+    from omegaconf import OmegaConf
+
+    from drs_torchrl.trainers.loop import ConfigError, Trainer
+
+    learn = tmp_path / "learn"
+    static = [a for a in TINY if not a.startswith("reward.disc")]  # static rewards have no learner settings
+    p = _run("drs-learn", *static, "reward=sparse", f"hydra.run.dir={learn}", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr[-3000:]
+    ck = torch.load(learn / "checkpoints" / "policy.pt", weights_only=False)
+    cfg = OmegaConf.load(learn / "config.yaml")
+    cfg.phase, cfg.env.split = "reuse", "test"
+    cfg.init_from = str(learn)
+    tr = Trainer(cfg, "reuse", tmp_path / "tuned")
+    try:
+        for k, v in ck["actor"].items():
+            assert torch.equal(tr.actor.state_dict()[k], v), k
+        q = tr.loss.qvalue_network_params.data.cpu().to_dict()
+        tq = tr.loss.target_qvalue_network_params.data.cpu()
+        from tensordict import TensorDict
+
+        saved = TensorDict(ck["qvalue_params"])
+        assert all(torch.equal(a, b) for a, b in zip(saved.values(True, True), TensorDict(q).values(True, True)))
+        assert all(torch.equal(a, b) for a, b in zip(saved.values(True, True), tq.values(True, True)))
+        assert torch.equal(tr.loss.log_alpha.detach(), ck["log_alpha"])
+    finally:
+        tr.close()
+    cfg.algo.hidden = [16, 16]
+    with pytest.raises(ConfigError, match="hidden \\[32, 32\\].*hidden \\[16, 16\\]"):
+        Trainer(cfg, "reuse", tmp_path / "bad")
+    out = tmp_path / "cli"
+    p = _run("drs-reuse", *static, "reward=semi_sparse", f"init_from={learn}", "env.split=test", f"hydra.run.dir={out}", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr[-3000:]
+    assert json.loads((out / "summary.json").read_text())["init_from"] == str(learn)
+
+
+def test_demonstrations_fill_a_share_of_every_sac_batch(tmp_path, demos):
+    """demos.sac_share (RLPD-style, beyond the paper): a fixed share of each SAC batch comes from the
+    demonstrations' transitions, rewarded by the current learned reward."""
+    from hydra import compose, initialize_config_dir
+
+    from drs_torchrl.demos import load_demos
+    from drs_torchrl.trainers.apps import conf_dir
+    from drs_torchrl.trainers.loop import ConfigError, Trainer
+
+    def cfg(*extra):
+        base = [a for a in TINY if not a.startswith("reward.disc")] if "reward=sparse" in extra else TINY
+        with initialize_config_dir(config_dir=conf_dir(), version_base=None):
+            return compose("learn", overrides=[*base, *extra])
+
+    tr = Trainer(cfg(f"demos.path={demos}", "demos.sac_share=0.25"), "learn", tmp_path / "run")
+    try:
+        tr.run()
+        batch = tr.sac_batch()
+        assert batch.shape == (32,) and tr._demo_batch == 8
+        episodes, _ = load_demos(demos)
+        demo_obs = torch.cat([ep["state", "observation"] for ep in episodes])
+        from_demos = (batch["observation"][:, None, :] == demo_obs[None]).all(-1).any(-1)
+        assert int(from_demos.sum()) >= 8 and bool(from_demos[-8:].all())
+        # their rewards are the learned reward's, recomputed now
+        assert torch.allclose(batch["next", "reward"][-8:], tr.learned.reward(batch["next"][-8:]))
+    finally:
+        tr.close()
+    with pytest.raises(ConfigError, match="reward learned in this run"):
+        Trainer(cfg(f"demos.path={demos}", "demos.sac_share=0.25", "reward=sparse"), "learn", tmp_path / "b")
+    with pytest.raises(ConfigError, match="must be in \\[0, 1\\)"):
+        Trainer(cfg(f"demos.path={demos}", "demos.sac_share=1.5"), "learn", tmp_path / "c")
+
+
+@pytest.mark.parametrize("use_action", [False, True])
+def test_a_classifier_reward_in_an_env_passes_torchrl_spec_checks(use_action):
+    from torchrl.envs.utils import check_env_specs
+
+    from drs_torchrl.envs.factory import make_family_env
+    from drs_torchrl.tasks import get_family
+
+    env = make_family_env(get_family("half_cheetah"), "train", seed=0, max_episode_steps=20)
+    try:
+        r = ClassifierReward(["observation", "stage_indicators"], {"observation": 17, "stage_indicators": 1}, 1,
+                             use_action=use_action, action_dim=6 if use_action else None, stage_weight=0.5)
+        env.append_transform(r)
+        check_env_specs(env)
+        td = env.rollout(5)
+        lo, hi = r.reward_bounds()
+        assert env.reward_spec.space.low.item() == pytest.approx(lo) and ((td["next", "reward"] >= lo) & (td["next", "reward"] <= hi)).all()
+    finally:
+        env.close()
