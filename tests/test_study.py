@@ -64,6 +64,8 @@ def test_run_state_tells_finished_interrupted_and_broken_runs_apart(tmp_path):
     assert run_state(d) == "resumable"
     (d / "summary.json").write_text(json.dumps({"frames": 128, "interrupted": False}))
     assert run_state(d) == "finished"
+    assert run_state(d, want_frames=512) == "resumable"  # the study file now asks for more: resumed to it
+    assert run_state(d, want_frames=64) == "finished"
     (d / "config.yaml").write_text("total_frames: 256\n")  # extended: not finished any more
     assert run_state(d) == "resumable"
 

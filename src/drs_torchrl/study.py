@@ -17,7 +17,8 @@ Study file::
       - {name: reuse-drs-s0, app: reuse, args: [reward=drs, reward.checkpoint=<root>/learn-s0/checkpoints/reward.pt], needs: [learn-s0]}
 
 A run is finished when its ``summary.json`` says it was not interrupted and it reached its
-``total_frames``. SIGINT/SIGTERM to the study stop every run at its next batch boundary (each
+``total_frames`` (its own, or the study file's if that is larger: raising it there extends finished
+runs). SIGINT/SIGTERM to the study stop every run at its next batch boundary (each
 saves its training state) and the study exits 130/143; re-invoke it to continue.
 (Hydra's multirun launchers start every job afresh and know neither resuming nor skipping.)
 """
@@ -104,9 +105,19 @@ def load_study(path: str | Path) -> tuple[Path, list[Run]]:
     return root, runs
 
 
-def run_state(run_dir: Path) -> str:
+def wanted_frames(run: Run) -> int | None:
+    """The ``total_frames`` a study asks of a run (the last ``total_frames=`` of its arguments), or None."""
+    values = [a.split("=", 1)[1] for a in run.args if a.split("=", 1)[0] == "total_frames"]
+    try:
+        return int(values[-1]) if values else None
+    except ValueError:
+        return None
+
+
+def run_state(run_dir: Path, want_frames: int | None = None) -> str:
     """``finished``, ``resumable`` (a complete training state), ``broken`` (a directory with no
-    usable state: it is started again) or ``new``."""
+    usable state: it is started again) or ``new``. A run that finished short of ``want_frames``
+    (the study file now asks for more) is ``resumable``."""
     summary = run_dir / "summary.json"
     if summary.is_file():
         try:
@@ -114,6 +125,7 @@ def run_state(run_dir: Path) -> str:
             import omegaconf
 
             total = int(omegaconf.OmegaConf.load(run_dir / "config.yaml").total_frames)
+            total = max(total, want_frames or 0)
             if not s.get("interrupted") and int(s.get("frames", 0)) >= total:
                 return "finished"
         except Exception:
@@ -152,7 +164,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"drs-study: error: --only names {unknown} that the study does not define", file=sys.stderr)
             return 2
         runs = [r for r in runs if r.name in a.only]
-    states = {r.name: run_state(root / r.name) for r in runs}
+    want = {r.name: wanted_frames(r) for r in runs}
+    states = {r.name: run_state(root / r.name, want[r.name]) for r in runs}
     if a.status:
         for r in runs:
             print(f"{states[r.name]:>10}  {root / r.name}")
@@ -178,11 +191,11 @@ def main(argv: list[str] | None = None) -> int:
             for name, proc in list(active.items()):
                 if proc.poll() is not None:
                     del active[name]
-                    state = run_state(root / name)
+                    state = run_state(root / name, want[name])
                     print(f"drs-study: {name}: exit {proc.returncode}, {state}", flush=True)
                     if state != "finished":
                         failed.append(name)
-            done = {n for n, s in ((r.name, run_state(root / r.name)) for r in runs) if s == "finished"}
+            done = {n for n, s in ((r.name, run_state(root / r.name, want[r.name])) for r in runs) if s == "finished"}
             for r in list(pending):
                 if len(active) >= a.jobs:
                     break
@@ -194,7 +207,7 @@ def main(argv: list[str] | None = None) -> int:
                 if not all(n in done for n in r.needs):
                     continue
                 run_dir = root / r.name
-                state = run_state(run_dir)
+                state = run_state(run_dir, want[r.name])
                 if state == "broken":  # started but never reached a checkpoint: nothing to keep
                     shutil.rmtree(run_dir)
                 cmd = command(r, run_dir, state)

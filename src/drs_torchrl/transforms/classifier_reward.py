@@ -36,6 +36,7 @@ from drs_torchrl.transforms.reward import (
     compatibility_problems,
     load_checked,
     read_reward_checkpoint,
+    require,
     write_reward_checkpoint,
 )
 
@@ -125,7 +126,7 @@ class ClassifierReward(Transform):
     # ------------------------------------------------------------ reward math
     def state_features(self, state: TensorDictBase) -> torch.Tensor:
         """The state entries ``D`` reads, concatenated."""
-        return torch.cat([state.get(k).to(torch.float32) for k in self.reward_in_keys], dim=-1)
+        return torch.cat([require(state, k).to(torch.float32) for k in self.reward_in_keys], dim=-1)
 
     def features(self, state: TensorDictBase, action: torch.Tensor | None = None) -> torch.Tensor:
         """``D``'s input: the state features, and the action when it reads ``(s, a)``."""
@@ -155,7 +156,7 @@ class ClassifierReward(Transform):
         ``s'`` or ``(s, a)``; the stage term reads ``s'``."""
         with torch.no_grad():
             src = state if self.use_action else next_state
-            return self.combine(self.logits(src, action), next_state.get(self.stage_key))
+            return self.combine(self.logits(src, action), require(next_state, self.stage_key))
 
     def reward(self, td: TensorDictBase) -> torch.Tensor:
         """Reward of a ``(T,)`` episode (a TensorDict with ``"next"``) or, for a state-only

@@ -143,7 +143,7 @@ class DrSReward(Transform):
     # ------------------------------------------------------------ reward math
     def features(self, td: TensorDictBase) -> torch.Tensor:
         """Concatenate the reward inputs of states held at the root of ``td``."""
-        return torch.cat([td.get(k).to(torch.float32) for k in self.reward_in_keys], dim=-1)
+        return torch.cat([require(td, k).to(torch.float32) for k in self.reward_in_keys], dim=-1)
 
     def combine(self, logits: torch.Tensor, stage: torch.Tensor) -> torch.Tensor:
         """Eq. 4 from all-stage logits ``(*b, N)`` and stage indices ``(*b, 1)``; returns ``(*b, 1)``."""
@@ -163,7 +163,7 @@ class DrSReward(Transform):
     def reward(self, td: TensorDictBase) -> torch.Tensor:
         """Reward of the states at the root of ``td`` (``(*batch, 1)``), without gradients."""
         with torch.no_grad():
-            return self.combine(self.discriminators(self.features(td)), td.get(self.stage_key))
+            return self.combine(self.discriminators(self.features(td)), require(td, self.stage_key))
 
     def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
         next_tensordict.set(self.reward_key, self.reward(next_tensordict))
@@ -177,6 +177,15 @@ class DrSReward(Transform):
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
         return tensordict_reset
+
+    def transform_reward_spec(self, reward_spec):
+        """Declare the reward this transform writes: float32 within :meth:`reward_bounds`."""
+        from torchrl.data import Bounded
+
+        lo, hi = self.reward_bounds()
+        shape = reward_spec[self.reward_key].shape if self.reward_key in reward_spec.keys() else (*reward_spec.shape, 1)
+        reward_spec[self.reward_key] = Bounded(lo, hi, shape=shape, dtype=torch.float32, device=reward_spec.device)
+        return reward_spec
 
     def reward_bounds(self) -> tuple[float, float]:
         """Infimum and maximum of the reward once all discriminators are trained
@@ -253,6 +262,14 @@ class DrSReward(Transform):
 
 
 # ---------------------------------------------------------------- shared by every learned reward
+def require(td: TensorDictBase, key) -> torch.Tensor:
+    """``td[key]``, or a KeyError naming the missing reward input and what the TensorDict holds."""
+    value = td.get(key, None)
+    if value is None:
+        raise KeyError(f"the reward reads {key!r}, which this TensorDict lacks (it holds {sorted(map(str, td.keys()))})")
+    return value
+
+
 def write_reward_checkpoint(path: str | os.PathLike, config: dict, state_dict: Mapping[str, torch.Tensor]) -> Path:
     """Write ``{format, version, config, state_dict}`` atomically (a crash never leaves a partial file)."""
     path = Path(path)

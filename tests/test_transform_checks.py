@@ -1,0 +1,117 @@
+"""Every reward transform of the slot through TorchRL's standard transform checks: one env, inside and
+outside a batched env (serial and parallel), composed, on a replay buffer, on a bare TensorDict and in
+a model (the cases of TorchRL's own transform tests), on real MuJoCo HalfCheetah."""
+import functools
+
+import pytest
+import torch
+from tensordict import TensorDict
+from torch import nn
+from torchrl.data import LazyTensorStorage, ReplayBuffer
+from torchrl.envs import ParallelEnv, SerialEnv, TransformedEnv
+from torchrl.envs.transforms import Compose, RewardScaling
+from torchrl.envs.utils import check_env_specs
+
+from drs_torchrl.envs.factory import make_family_env
+from drs_torchrl.tasks import get_family
+from drs_torchrl.transforms import ClassifierReward, DrSReward, StageIndicator
+
+pytestmark = pytest.mark.sim
+SHAPES = {"observation": 17, "stage_indicators": 1}
+
+
+def _drs():
+    return DrSReward(1, ["observation", "stage_indicators"], SHAPES, formula="rescaled")
+
+
+def _vice():
+    return ClassifierReward(["observation"], {"observation": 17}, 1, method="vice_raq")
+
+
+def _gail_stages():
+    return ClassifierReward(["observation", "stage_indicators"], SHAPES, 1, use_action=True, action_dim=6,
+                            stage_weight=1.0, method="gail")
+
+
+def _dense_shift():
+    return RewardScaling(loc=-1.0, scale=1.0)
+
+
+MAKERS = {"drs": _drs, "vice_raq": _vice, "gail_stages": _gail_stages, "dense_shift": _dense_shift}
+
+
+def _env(transform=None):
+    ts = [transform] if transform is not None else []
+    return make_family_env(get_family("half_cheetah"), "train", seed=0, max_episode_steps=20, transforms=ts)
+
+
+def _seeded(maker):
+    torch.manual_seed(0)
+    return maker()
+
+
+def _env_with(name):
+    """A sub-env of a batched env, with its own copy of the transform (picklable for ParallelEnv)."""
+    return _env(_seeded(MAKERS[name]))
+
+
+@pytest.mark.parametrize("name", MAKERS)
+def test_single_env_and_inside_and_outside_batched_envs(name):
+    maker = functools.partial(_seeded, MAKERS[name])
+    t = maker()
+    e = _env(t)
+    try:
+        check_env_specs(e)
+        if hasattr(t, "reward_bounds"):  # the learned rewards declare their range in the reward spec
+            lo, hi = t.reward_bounds()
+            space = e.reward_spec.space
+            assert (space.low.item(), space.high.item()) == pytest.approx((lo, hi))
+            r = e.rollout(10)["next", "reward"]
+            assert ((r >= lo) & (r <= hi)).all()
+    finally:
+        e.close()
+    for batched in (SerialEnv, ParallelEnv):
+        inside = batched(2, functools.partial(_env_with, name))  # the transform inside each sub-env
+        try:
+            check_env_specs(inside)
+        finally:
+            inside.close()
+    outside = make_family_env(get_family("half_cheetah"), "train", seed=0, max_episode_steps=20, num_envs=2)
+    outside.append_transform(maker())  # one transform over the batched env
+    try:
+        check_env_specs(outside)
+        td = outside.rollout(3)
+        assert td["next", "reward"].shape == (2, 3, 1)
+    finally:
+        outside.close()
+
+
+@pytest.mark.parametrize("name", [n for n in MAKERS if n != "dense_shift"])
+def test_composed_on_a_replay_buffer_without_env_and_in_a_model(name):
+    reward = _seeded(MAKERS[name])
+    e = _env()
+    try:
+        data = e.rollout(6)
+    finally:
+        e.close()
+    expected = reward.reward(data) if isinstance(reward, ClassifierReward) else reward.reward(data["next"])
+    # composed (a Compose of a stage labeller and the reward, applied to transitions)
+    composed = Compose(StageIndicator(["success"]), reward.clone())
+    out = composed(data.clone())
+    assert torch.allclose(out["next", "reward"], expected)
+    # on a replay buffer: the reward is recomputed at sampling
+    rb = ReplayBuffer(storage=LazyTensorStorage(10), transform=reward.clone(), batch_size=6)
+    rb.extend(data.clone().exclude(("next", "reward")))
+    sample = rb.sample()
+    got = reward.reward(sample) if isinstance(reward, ClassifierReward) else reward.reward(sample["next"])
+    assert torch.allclose(sample["next", "reward"], got)
+    # no env: a bare TensorDict of transitions
+    bare = reward.clone()(data.clone())
+    assert torch.allclose(bare["next", "reward"], expected)
+    # in a model
+    model = nn.Sequential(reward.clone(), nn.Identity())
+    assert torch.allclose(model(data.clone())["next", "reward"], expected)
+    # a missing input is named
+    with pytest.raises(KeyError, match="observation"):
+        reward.clone()(TensorDict({"next": data["next"].exclude("observation"), "action": data["action"],
+                                   "observation": data["observation"], "stage": data["stage"]}, batch_size=data.shape))
