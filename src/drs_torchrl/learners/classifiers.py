@@ -228,10 +228,10 @@ class DemoDiscriminatorLearner(RewardLearner):
             loss = out["loss"] + (out["gp_loss"] if "gp_loss" in out.keys() else 0.0)
             self._train_step(loss, (self.optim,))
             self.reward.classifier.trained.fill_(True)
-            with torch.no_grad():
-                d_demo = self.reward.classifier(torch.cat([batch["observation"], batch["action"]], -1))
-                d_agent = self.reward.classifier(torch.cat([agent_x, agent_a], -1).to(self.device))
-            acc = 0.5 * ((d_demo > 0).float().mean() + (d_agent <= 0).float().mean())
+            with torch.no_grad():  # one pass over both sides, for the logged accuracy
+                z = self.reward.classifier(torch.cat([torch.cat([batch["observation"], batch["action"]], -1),
+                                                      torch.cat([batch["collector_observation"], batch["collector_action"]], -1)]))
+            acc = 0.5 * ((z[:B] > 0).float().mean() + (z[B:] <= 0).float().mean())
             out = TensorDict({"loss": loss.detach(), "accuracy": acc}, batch_size=[])
         return out
 

@@ -27,12 +27,12 @@ import torch
 import torch.nn.functional as F
 from tensordict import TensorDictBase
 from torch import nn
-from torchrl.data import Bounded
 from torchrl.envs.transforms import Transform
 
 from drs_torchrl.transforms.reward import (
     _ACTIVATIONS,
     RewardCheckpointError,
+    bounded_reward_spec,
     compatibility_problems,
     load_checked,
     read_reward_checkpoint,
@@ -182,10 +182,7 @@ class ClassifierReward(Transform):
         return tensordict_reset
 
     def transform_reward_spec(self, reward_spec):
-        lo, hi = self.reward_bounds()
-        shape = reward_spec[self.reward_key].shape if self.reward_key in reward_spec.keys() else (*reward_spec.shape, 1)
-        reward_spec[self.reward_key] = Bounded(lo, hi, shape=shape, dtype=torch.float32, device=reward_spec.device)
-        return reward_spec
+        return bounded_reward_spec(reward_spec, self.reward_key, *self.reward_bounds())
 
     def reward_bounds(self) -> tuple[float, float]:
         """Smallest and largest reward this transform writes."""

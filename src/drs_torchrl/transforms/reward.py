@@ -180,12 +180,7 @@ class DrSReward(Transform):
 
     def transform_reward_spec(self, reward_spec):
         """Declare the reward this transform writes: float32 within :meth:`reward_bounds`."""
-        from torchrl.data import Bounded
-
-        lo, hi = self.reward_bounds()
-        shape = reward_spec[self.reward_key].shape if self.reward_key in reward_spec.keys() else (*reward_spec.shape, 1)
-        reward_spec[self.reward_key] = Bounded(lo, hi, shape=shape, dtype=torch.float32, device=reward_spec.device)
-        return reward_spec
+        return bounded_reward_spec(reward_spec, self.reward_key, *self.reward_bounds())
 
     def reward_bounds(self) -> tuple[float, float]:
         """Infimum and maximum of the reward once all discriminators are trained
@@ -262,6 +257,15 @@ class DrSReward(Transform):
 
 
 # ---------------------------------------------------------------- shared by every learned reward
+def bounded_reward_spec(reward_spec, key, low: float, high: float):
+    """``reward_spec`` with ``key`` declared float32 in ``[low, high]`` (its shape kept)."""
+    from torchrl.data import Bounded
+
+    shape = reward_spec[key].shape if key in reward_spec.keys() else (*reward_spec.shape, 1)
+    reward_spec[key] = Bounded(low, high, shape=shape, dtype=torch.float32, device=reward_spec.device)
+    return reward_spec
+
+
 def require(td: TensorDictBase, key) -> torch.Tensor:
     """``td[key]``, or a KeyError naming the missing reward input and what the TensorDict holds."""
     value = td.get(key, None)
