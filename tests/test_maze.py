@@ -408,3 +408,46 @@ def test_n_step_windows_that_reach_the_goal_are_terminal():
     # windows from t = 3, 4, 5 end on the goal (obs 105): terminal; t = 2 ends on 104: not
     assert by_t[3] == (True, 105.0, 3) and by_t[4] == (True, 105.0, 2) and by_t[5] == (True, 105.0, 1)
     assert by_t[2] == (False, 104.0, 3) and by_t[6] == (False, 108.0, 3)
+
+
+def test_next_state_reward_reads_s_prime_and_a_move_into_a_wall_scores_as_staying():
+    """``reward.input=next_state``: R(s') (Sec. 4.3). The reward table of a cell gives a blocked
+    move the value of "stay", and the reward transform reads the observation under ``"next"``."""
+    torch.manual_seed(0)
+    r = DrSReward(1, ["observation"], {"observation": OBS_DIMS["onehot"]}, formula="rescaled",
+                  metadata={"family": "three_room_maze", "reward_on": "next_state"})
+    r.discriminators.trained[:] = True
+    cells, table = dense_reward_table(r, "train", (2, 8))
+    corner = [i for i, c in enumerate(cells.tolist()) if c == [15, 1]][0]  # bottom-left corner: down and left are walls
+    assert table[corner, DOWN] == table[corner, STAY] == table[corner, LEFT] != table[corner, UP]
+    B = 4
+    td = TensorDict({"observation": torch.rand(B, OBS_DIMS["onehot"]), "action": onehot([0, 1, 2, 3]),
+                     "next": {"observation": torch.rand(B, OBS_DIMS["onehot"]), "stage": torch.zeros(B, 1, dtype=torch.long),
+                              "reward": torch.zeros(B, 1)}}, batch_size=[B])
+    got = StateActionReward(r)(td)["next", "reward"]
+    assert torch.allclose(got, r.alpha * torch.tanh(r.discriminators(td["next", "observation"])) - 2.0)
+    for ep in demo_episodes("train", 3, seed=0, next_state=True):  # demonstrations carry s', the last one the goal
+        goal_obs = ep["next", "observation"][-1]
+        assert torch.equal(goal_obs[: 2 * SIZE], goal_obs[2 * SIZE: 4 * SIZE])  # agent on the goal
+
+
+def test_control_options_next_state_demos_only_constant_part_and_moved_gate_maps(tmp_path):
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base=None):
+        s = train(compose("maze", overrides=["phase=learn", "reward.input=next_state", "reward.positives=demos", "demos=5", *TINY]),
+                  tmp_path / "learn")
+        reward = DrSReward.from_checkpoint(tmp_path / "learn" / "reward.pt")
+        assert reward.reward_in_keys == ["observation"] and reward.metadata["reward_on"] == "next_state"
+        assert s["reward_input"] == "next_state"
+        demo_steps = sum(len(ep) for ep in demo_episodes("train", 5, 0, next_state=True))
+        assert s["stage_buffer_counts"][1] == demo_steps  # positives=demos: the agent's successes are not filed
+        s = train(compose("maze", overrides=["phase=reuse", "map=test_shift3", f"reward.checkpoint={tmp_path / 'learn' / 'reward.pt'}",
+                                             "reward.reuse_alpha=0", *TINY]), tmp_path / "reuse")
+        assert s["map"] == "test_shift3" and s["reward_alpha"] == 0.0
+        assert reward_label(s) == "drs[s'] constant part (alpha=0)"
+        rows = list(csv.DictReader((tmp_path / "reuse" / "train.csv").read_text().splitlines()))
+        means = [float(r["reward_mean"]) for r in rows if r["reward_mean"] not in ("", "nan")]
+        assert means and all(-2.0 <= m <= -1.0 for m in means)  # alpha=0: -2 a step, -1 on success, nothing learned
+        with pytest.raises(MazeConfigError, match="demos > 0"):
+            train(compose("maze", overrides=["phase=learn", "reward.positives=demos", "demos=0", *TINY]), tmp_path / "bad")
+    grid = make_grid("test_shift3")
+    assert [(~grid[row]).nonzero().reshape(-1).tolist() for row in WALL_ROWS] == [[6], [10]]

@@ -42,8 +42,11 @@ WALL_ROWS = (5, 11)  # the two inner walls: top room rows 1-4, middle 6-10, bott
 TOP_ROOM = (1, 4)  # inclusive row ranges
 MIDDLE_ROOM = (6, 10)
 BOTTOM_ROOM = (12, 15)
-# gate column of the (upper wall, lower wall); the test map moves both gates
-GATES = {"train": (3, 13), "test": (13, 3)}
+# gate column of the (upper wall, lower wall). ``test`` swaps the train map's gates end for end (every
+# left/right preference learned on the train map is wrong there); ``test_shift3`` / ``test_shift6``
+# move both gates 3 / 6 columns towards the middle, so a preference for the train gates' side still
+# points the right way (the layouts where the paper's figure caption reasons about the learned reward)
+GATES = {"train": (3, 13), "test": (13, 3), "test_shift3": (6, 10), "test_shift6": (9, 7)}
 # coordinate encodings: one-hot (17 entries per coordinate), scalar (coordinate / 16), relative:
 # the goal's offset from the agent (dx, dy) / 16 only, with no absolute position (an egocentric view
 # a reward can read without learning where the train map's gates are), and patch: no coordinates at

@@ -98,6 +98,13 @@ def validate_config(cfg: DictConfig, phase: str) -> None:
     for ok, msg in checks:
         if not ok:
             raise ConfigError(msg)
+    if cfg.logger.get("wandb", False):
+        import importlib.util
+
+        if importlib.util.find_spec("wandb") is None:
+            raise ConfigError("logger.wandb=true needs the wandb package: pip install wandb (or set logger.wandb=false)")
+        if cfg.logger.get("wandb_mode", "offline") not in ("offline", "online"):
+            raise ConfigError(f"logger.wandb_mode must be offline or online, got {cfg.logger.wandb_mode!r}")
     if cfg.device not in ("cpu", "auto") and not str(cfg.device).startswith("cuda"):
         raise ConfigError(f"device must be cpu, cuda[:i] or auto, got {cfg.device}")
     if str(cfg.device).startswith("cuda") and not torch.cuda.is_available():
@@ -256,7 +263,9 @@ class Trainer:
             self.resumed_from = self.frames
             self.env.set_seed(int(cfg.seed) + 1 + self.frames)  # fresh episodes, not the first run's
         self.logger = RunLogger(
-            self.run_dir, tensorboard=cfg.logger.tensorboard, csv_files=cfg.logger.csv, resume_step=self.resumed_from
+            self.run_dir, tensorboard=cfg.logger.tensorboard, csv_files=cfg.logger.csv, resume_step=self.resumed_from,
+            wandb=bool(cfg.logger.get("wandb", False)), wandb_project=cfg.logger.get("wandb_project", "drs-torchrl"),
+            wandb_mode=cfg.logger.get("wandb_mode", "offline"),
         )
         # written last: a run that fails to start (or to resume) leaves the directory as it was
         OmegaConf.save(cfg, self.run_dir / "config.yaml", resolve=True)

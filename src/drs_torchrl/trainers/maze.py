@@ -78,6 +78,7 @@ from drs_torchrl.objectives import DiscriminatorLoss
 from drs_torchrl.transforms import DrSReward, StageIndicator
 
 REWARDS = ("drs", "sparse", "semi_sparse", "dense")
+REWARD_INPUTS = ("state_action", "next_state")  # R(s, a) as the appendix's tabular analysis, or R(s') as Sec. 4.3
 FAMILY = "three_room_maze"
 RB_KEYS = ["observation", "action", ("next", "observation"), ("next", "reward"), ("next", "done"),
            ("next", "terminated"), ("next", "truncated"), ("next", "stage")]
@@ -124,7 +125,8 @@ class StateActionReward(Transform):
     ``obs_coords``: the coordinate encoding of the env's observations; when the reward was learned on
     another one (e.g. ``relative``), observations are re-encoded before the reward reads them.
     ``scale`` multiplies the reward the agent sees (``dqn.reward_scale``); the discriminator is
-    untouched.
+    untouched. A reward learned with ``reward.input=next_state`` (metadata ``reward_on``) reads its
+    inputs from ``"next"`` instead: ``R(s')`` as in Sec. 4.3.
     """
 
     def __init__(self, reward: DrSReward, obs_coords: str | None = None, scale: float = 1.0):
@@ -133,9 +135,11 @@ class StateActionReward(Transform):
         self.obs_coords = obs_coords
         self.reward_coords = reward_coords(reward)
         self.scale = float(scale)
+        self.on_next_state = reads_next_state(reward)
 
     def _reward(self, root: TensorDictBase, nxt: TensorDictBase) -> torch.Tensor:
-        sa = TensorDict({k: root.get(k) for k in self.drs.reward_in_keys}, batch_size=root.batch_size)
+        src = nxt if self.on_next_state else root
+        sa = TensorDict({k: src.get(k) for k in self.drs.reward_in_keys}, batch_size=root.batch_size)
         if self.obs_coords is not None and self.obs_coords != self.reward_coords:
             sa.set("observation", convert_observation(sa.get("observation"), self.obs_coords, self.reward_coords))
         sa.set(self.drs.stage_key, nxt.get(self.drs.stage_key))
@@ -152,11 +156,11 @@ class StateActionReward(Transform):
 
 
 def sa_trajectory(episode: TensorDictBase, stage_key: str = "stage", obs_coords: str | None = None,
-                  reward_coords: str | None = None) -> TensorDict:
+                  reward_coords: str | None = None, next_state: bool = False) -> TensorDict:
     """An episode as :meth:`StageBuffers.add_trajectory` reads it: per step, the pair ``(s, a)``
-    and the stage of ``s'``, under ``"next"``; observations re-encoded from ``obs_coords`` to
-    ``reward_coords`` when both are given."""
-    obs = episode.get("observation")
+    (or ``s'`` alone with ``next_state``) and the stage of ``s'``, under ``"next"``; observations
+    re-encoded from ``obs_coords`` to ``reward_coords`` when both are given."""
+    obs = episode.get(("next", "observation") if next_state else "observation")
     if obs_coords is not None and reward_coords is not None:
         obs = convert_observation(obs, obs_coords, reward_coords)
     inner = TensorDict(
@@ -165,6 +169,11 @@ def sa_trajectory(episode: TensorDictBase, stage_key: str = "stage", obs_coords:
         batch_size=episode.batch_size,
     )
     return TensorDict({"next": inner}, batch_size=episode.batch_size)
+
+
+def reads_next_state(reward: DrSReward) -> bool:
+    """Whether a maze reward reads ``s'`` (``reward.input=next_state``) rather than ``(s, a)``."""
+    return reward.metadata.get("reward_on") == "next_state"
 
 
 def reward_coords(reward: DrSReward) -> str:
@@ -176,11 +185,17 @@ def reward_coords(reward: DrSReward) -> str:
     raise MazeConfigError(f"a maze reward reads observations of size {sorted(OBS_DIMS.values())}, this one {dim}")
 
 
-def all_state_actions(map_name: str, goal: tuple[int, int], coords: str = "onehot") -> tuple[torch.Tensor, torch.Tensor]:
+def all_state_actions(map_name: str, goal: tuple[int, int], coords: str = "onehot",
+                      next_state: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """Every free cell of a map (``(n, 2)``) and the features ``(n, 5, obs + 5)`` of each of its
-    (state, action) pairs for a given goal cell."""
+    (state, action) pairs for a given goal cell; with ``next_state``, the observation ``(n, 5, obs)``
+    of the cell each action leads to (walls block)."""
     grid = make_grid(map_name)
     cells = free_cells(grid)
+    if next_state:
+        tgt = cells.unsqueeze(1) + MOVES  # (n, 5, 2)
+        nxt = torch.where(grid[tgt[..., 0], tgt[..., 1]].unsqueeze(-1), cells.unsqueeze(1).expand_as(tgt), tgt)
+        return cells, observation(grid, nxt, torch.tensor(goal).expand(*nxt.shape[:-1], 2), coords)
     obs = observation(grid, cells, torch.tensor(goal).expand(len(cells), 2), coords)
     eye = torch.eye(len(ACTIONS))
     feats = torch.cat([obs.unsqueeze(1).expand(-1, len(ACTIONS), -1), eye.expand(len(cells), -1, -1)], -1)
@@ -189,7 +204,7 @@ def all_state_actions(map_name: str, goal: tuple[int, int], coords: str = "oneho
 
 def dense_reward_table(reward: DrSReward, map_name: str, goal: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
     """``R(s, a)`` of every free cell and action at stage 0 (the learned term), ``(n, 5)``."""
-    cells, feats = all_state_actions(map_name, goal, reward_coords(reward))
+    cells, feats = all_state_actions(map_name, goal, reward_coords(reward), reads_next_state(reward))
     with torch.no_grad():
         logits = reward.discriminators(feats)
         r = reward.combine(logits, torch.zeros(*logits.shape[:-1], 1, dtype=torch.long)).squeeze(-1)
@@ -310,9 +325,10 @@ def evaluate(actor, env: TransformedEnv) -> dict[str, float]:
     return {"eval_success": float(success.float().mean()), "eval_length": float((first + 1).float().mean())}
 
 
-def demo_episodes(map_name: str, n: int, seed: int, coords: str = "onehot") -> list[TensorDict]:
+def demo_episodes(map_name: str, n: int, seed: int, coords: str = "onehot", next_state: bool = False) -> list[TensorDict]:
     """``n`` shortest-path episodes on a map (Algorithm 1, line 3: optional demonstrations for the
-    success buffer), from random bottom-room starts to random top-room goals."""
+    success buffer), from random bottom-room starts to random top-room goals. Per step the
+    observation of ``s`` (of ``s'`` with ``next_state``), the action and the stage of ``s'``."""
     env = ThreeRoomMaze(map_name, num_envs=1, seed=seed)
     dist = env.shortest_distances()
     g = torch.Generator().manual_seed(seed)
@@ -327,7 +343,7 @@ def demo_episodes(map_name: str, n: int, seed: int, coords: str = "onehot") -> l
                 t = s + MOVES[a]
                 if d[t[0], t[1]] == d[s[0], s[1]] - 1:
                     break
-            obs.append(observation(env.grid, s, goal, coords))
+            obs.append(observation(env.grid, t if next_state else s, goal, coords))
             acts.append(torch.nn.functional.one_hot(torch.tensor(a), len(ACTIONS)).float())
             s = t
         stage = torch.zeros(len(obs), 1, dtype=torch.long)
@@ -356,6 +372,13 @@ def validate(cfg: DictConfig) -> None:
         (cfg.dqn.get("reward_scale", 1.0) > 0, "dqn.reward_scale must be > 0 (it multiplies the reward the agent trains on)"),
         (cfg.eval.interval > 0 and cfg.eval.episodes > 0, "eval.interval and eval.episodes must be > 0"),
         (cfg.demos >= 0, "demos must be >= 0"),
+        (cfg.reward.get("input", "state_action") in REWARD_INPUTS,
+         f"reward.input must be one of {REWARD_INPUTS}, got {cfg.reward.get('input')!r}"),
+        (cfg.reward.get("positives", "all") in ("all", "demos"), f"reward.positives must be all or demos, got {cfg.reward.get('positives')!r}"),
+        (cfg.reward.get("positives", "all") != "demos" or cfg.demos > 0,
+         "reward.positives=demos makes the demonstrations the only positives: set demos > 0"),
+        (cfg.reward.get("reuse_alpha") is None or 0 <= float(cfg.reward.reuse_alpha) < 0.5,
+         "reward.reuse_alpha must be null or in [0, 0.5) (0 keeps only DrS's constant part)"),
         (cfg.coords in OBS_DIMS, f"coords must be one of {sorted(OBS_DIMS)}, got {cfg.coords!r}"),
         (cfg.reward.get("coords") in (None, *OBS_DIMS), f"reward.coords must be null or one of {sorted(OBS_DIMS)}, got {cfg.reward.get('coords')!r}"),
         (_convertible(cfg.coords, cfg.reward.get("coords") or cfg.coords),
@@ -388,25 +411,30 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
         r = cfg.reward
         if learn:
             rc = r.get("coords") or cfg.coords
-            drs = DrSReward(1, ["observation", "action"], {"observation": OBS_DIMS[rc], "action": len(ACTIONS)},
+            on_next = r.get("input", "state_action") == "next_state"
+            keys = ["observation"] if on_next else ["observation", "action"]
+            drs = DrSReward(1, keys, {"observation": OBS_DIMS[rc], "action": len(ACTIONS)} if not on_next else {"observation": OBS_DIMS[rc]},
                             formula=r.formula, alpha=r.alpha, offset=r.offset, hidden=list(r.hidden), activation=r.activation,
-                            metadata={"family": FAMILY, "map": map_name, "reward_on": "state_action", "coords": rc, "seed": int(cfg.seed)})
-            buffers = StageBuffers(1, ["observation", "action"], capacity=r.stage_buffer_size, batch_size=r.disc.batch_size)
-            disc_loss = DiscriminatorLoss(drs.discriminators, ["observation", "action"], early_stop_threshold=r.disc.early_stop_threshold,
+                            metadata={"family": FAMILY, "map": map_name, "reward_on": "next_state" if on_next else "state_action",
+                                      "coords": rc, "seed": int(cfg.seed), "positives": r.get("positives", "all")})
+            buffers = StageBuffers(1, keys, capacity=r.stage_buffer_size, batch_size=r.disc.batch_size)
+            disc_loss = DiscriminatorLoss(drs.discriminators, keys, early_stop_threshold=r.disc.early_stop_threshold,
                                           window=r.disc.window)
             disc_opt = torch.optim.Adam(drs.discriminators.parameters(), lr=r.disc.lr)
-            for ep in demo_episodes(map_name, int(cfg.demos), int(cfg.seed), rc) if cfg.demos else []:
+            for ep in demo_episodes(map_name, int(cfg.demos), int(cfg.seed), rc, on_next) if cfg.demos else []:
                 buffers.add_trajectory(ep, demo=True)
         else:
             drs = DrSReward.from_checkpoint(r.checkpoint)
             meta = drs.metadata
-            if meta.get("family") != FAMILY or drs.num_stages != 1 or drs.reward_in_keys != ["observation", "action"]:
-                raise MazeConfigError(f"{r.checkpoint} is not a maze (s, a) reward (family {meta.get('family')!r}, inputs {drs.reward_in_keys})")
+            if meta.get("family") != FAMILY or drs.num_stages != 1 or drs.reward_in_keys not in (["observation", "action"], ["observation"]):
+                raise MazeConfigError(f"{r.checkpoint} is not a maze reward (family {meta.get('family')!r}, inputs {drs.reward_in_keys})")
             if not _convertible(cfg.coords, reward_coords(drs)):
                 raise MazeConfigError(f"{r.checkpoint} was learned with coords={reward_coords(drs)}, which this run's "
                                       f"coords={cfg.coords} observations cannot be re-encoded to; use coords={reward_coords(drs)}")
             if r.get("reuse_offset") is not None:  # shift the frozen reward (the learned term is unchanged)
                 drs.offset = float(r.reuse_offset)
+            if r.get("reuse_alpha") is not None:  # reweight the learned term; 0 leaves DrS's constant part (the control)
+                drs.alpha = float(r.reuse_alpha)
             drs.requires_grad_(False)
     # the run directory is written only once the reward (and its checkpoint) is known to be usable
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -481,7 +509,9 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
                 stage = int(ep.get(("next", "stage")).max())
                 episodes.append((stage, ep.shape[0]))
                 if buffers is not None:
-                    buffers.add_trajectory(sa_trajectory(ep, obs_coords=cfg.coords, reward_coords=rc))
+                    if stage == 0 or cfg.reward.get("positives", "all") == "all":  # positives=demos: agent successes not filed
+                        buffers.add_trajectory(sa_trajectory(ep, obs_coords=cfg.coords, reward_coords=rc,
+                                                             next_state=reads_next_state(drs)))
                     disc_loss.record_episodes([stage])
             explore.step(n)
             if frames < int(d.learning_starts):
@@ -517,6 +547,8 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
     wall = time.perf_counter() - t0
     summary = {
         "phase": cfg.phase, "map": map_name, "reward": rname, "reward_scale": scale, "seed": int(cfg.seed),
+        "reward_input": ("next_state" if reads_next_state(drs) else "state_action") if drs is not None else None,
+        "reward_alpha": drs.alpha if drs is not None else None,
         "reward_coords": reward_coords(drs) if (drs is not None and reward_coords(drs) != cfg.coords) else None, "frames": frames, "updates": updates,
         "wall_time_s": round(wall, 1), "cpu_time_s": round(time.process_time() - cpu0, 1), "env_steps_per_s": round(frames / wall, 1),
         "final_eval_success": rows[-1]["eval_success"], "final_eval_length": rows[-1]["eval_length"],
@@ -528,7 +560,8 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
             summary["reward_checkpoint"] = str(drs.save(run_dir / "reward.pt"))
             summary["disc_updates"] = disc_updates
             summary["stage_buffer_counts"] = buffers.stage_counts().tolist()
-        summary["reward_map"] = str(plot_reward_map(drs, run_dir / "reward_map.png", tuple(cfg.plot_goal)))
+        maps = ("train", map_name if map_name != "train" else "test")
+        summary["reward_map"] = str(plot_reward_map(drs, run_dir / "reward_map.png", tuple(cfg.plot_goal), maps))
         summary["reward_diagnostics"] = {m: reward_diagnostics(drs, m, cfg.max_steps) for m in GATES}
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     return summary
@@ -555,8 +588,13 @@ def reward_label(summary: dict) -> str:
     """The reward's name in reports, with what the learned reward reads when that is not the agent's
     observation (``reward.coords``, e.g. ``drs[patch]``) and ``dqn.reward_scale`` when it is not 1."""
     name = summary["reward"]
-    if name == "drs" and summary.get("reward_coords"):
-        name = f"drs[{summary['reward_coords']}]"
+    if name == "drs":
+        tags = [summary["reward_coords"]] if summary.get("reward_coords") else []
+        if summary.get("reward_input") == "next_state":
+            tags.append("s'")
+        name = f"drs[{', '.join(tags)}]" if tags else name
+        if summary.get("phase") == "reuse" and summary.get("reward_alpha") == 0:
+            name = f"{name} constant part (alpha=0)"
     scale = float(summary.get("reward_scale", 1.0))
     return name if scale == 1.0 else f"{name} x{scale:g}"
 
@@ -594,27 +632,29 @@ def report(root, out: str | os.PathLike) -> dict:
                 w.writerow([summ["phase"], summ["map"], reward_label(summ), summ["seed"], r["frames"], r["eval_success"], r["eval_length"], r["train_success"]])
     groups: dict[tuple[str, str], list] = {}
     for summ, rows, d in runs:
-        groups.setdefault((summ["phase"], reward_label(summ)), []).append((summ, rows, d))
+        groups.setdefault((summ["phase"], summ["map"], reward_label(summ)), []).append((summ, rows, d))
+    many_maps = {ph: len({m for p, m, _ in groups if p == ph}) > 1 for ph, _, _ in groups}
     panels = [("learn", "phase 1: DrS reward learning (train map)"), ("reuse", "phase 2: fresh DQN on the test map")]
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
     table = ["| phase | map | reward | seeds | env steps | eval success at the end (per seed) | mean +- std | mean over the last 3 evals | wall time per run (s) |",
              "|---|---|---|---|---|---|---|---|---|"]
     for ax, (phase, title) in zip(axes, panels):
-        for (ph, rname), members in sorted(groups.items()):
+        for (ph, map_name, rname), members in sorted(groups.items()):
             if ph != phase:
                 continue
+            legend = f"{rname} on {map_name}" if many_maps[ph] else rname
             frames = np.array([float(r["frames"]) for r in members[0][1]])
             n = min(len(m[1]) for m in members)
             curves = np.array([[float(r["eval_success"]) for r in m[1][:n]] for m in members])
             mean, std = curves.mean(0), curves.std(0)
-            ax.plot(frames[:n], mean, label=f"{rname} ({len(members)} seeds)")
+            ax.plot(frames[:n], mean, label=f"{legend} ({len(members)} seeds)")
             ax.fill_between(frames[:n], mean - std, mean + std, alpha=0.25)
             finals = [m[0]["final_eval_success"] for m in members]
             last3 = [m[0]["mean_eval_success_last3"] for m in members]
             table.append(f"| {phase} | {members[0][0]['map']} | {rname} | {', '.join(str(m[0]['seed']) for m in members)} | "
                          f"{members[0][0]['frames']} | {', '.join(f'{x:.2f}' for x in finals)} | {np.mean(finals):.2f} +- {np.std(finals):.2f} | "
                          f"{np.mean(last3):.2f} | {np.mean([m[0]['wall_time_s'] for m in members]):.0f} |")
-        ax.set_title(title)
+        ax.set_title(title if not many_maps.get(phase) else title.split(" on the ")[0] + " (map in the legend)")
         ax.set_xlabel("env steps")
         ax.set_ylabel("greedy eval success rate")
         ax.set_ylim(-0.05, 1.05)
