@@ -7,7 +7,7 @@ import torch
 from tensordict import TensorDict
 from torchrl.data import LazyTensorStorage, ReplayBuffer
 
-from drs_torchrl.learners import DemoDiscriminatorLearner, OfflineClassifierLearner, SuccessClassifierLearner
+from drs_torchrl.learners import DemoDiscriminatorLearner, DrSLearner, OfflineClassifierLearner, SuccessClassifierLearner
 from drs_torchrl.transforms import ClassifierReward, DrSReward, RewardCheckpointError, load_reward
 
 D = 4  # observation size of the synthetic problems
@@ -134,3 +134,44 @@ def test_reuse_refuses_a_checkpoint_of_another_method(tmp_path):
     with pytest.raises(ValueError, match="needs reward.checkpoint"):
         reward_setup(OmegaConf.create({"name": "oril", "checkpoint": None}), "reuse")
     assert reward_setup(OmegaConf.create({"name": "vice_raq", "checkpoint": str(path)}), "reuse").frozen.method == "vice_raq"
+
+
+def episode(n, *, success: bool, g=None):
+    """One episode of synthetic states under ``"next"``: a success ends on a good (stage-1) state."""
+    nxt = states(n, good=False, g=g)
+    if success:
+        nxt[-1] = states(1, good=True, g=g)[0]
+    return TensorDict({"next": nxt.select("observation", "stage")}, batch_size=[n])
+
+
+@pytest.mark.parametrize("file_successes", [True, False])
+def test_drs_learner_files_episodes_by_stage_and_separates_them(file_successes):
+    """One stage: successful episodes (and demos) against failed ones; the learned reward ranks the
+    success states above the failure states. ``file_successes=False`` keeps the agent's successes
+    out of the top buffer (demonstrations only) but still counts them for the early stop."""
+    torch.manual_seed(0)
+    r = DrSReward(1, ["observation"], {"observation": D}, formula="rescaled")
+    demo = states(5, good=True)
+    learner = DrSLearner(r, batch_size=64, lr=3e-3, demos=[demo.select("observation", "stage")], file_successes=file_successes)
+    g = torch.Generator().manual_seed(1)
+    eps = [episode(6, success=i % 2 == 0, g=g) for i in range(20)]
+    learner.observe(None, eps)
+    counts = learner.stage_buffers.stage_counts().tolist()
+    assert counts[0] == 10 * 6  # failures filed whole (one stage: nothing to cut)
+    assert counts[1] == 5 + (10 * 6 if file_successes else 0)
+    assert learner.stage_buffers.episodes_per_stage.tolist() == [10, 1 + (10 if file_successes else 0)]
+    assert learner.loss.beyond_rates()[0] == pytest.approx(0.5)  # successes count either way
+    for _ in range(200):
+        out = learner.update()
+    assert learner.updates == 200
+    # demos only: positives (good states) and negatives separate cleanly; with the agent's successes
+    # filed, their failure-like early states sit on both sides, which caps the accuracy (about 0.62)
+    assert float(out["accuracy_0"]) > (0.9 if not file_successes else 0.55)
+    td = TensorDict({"next": {"observation": torch.cat([states(50, good=True)["observation"], states(50, good=False)["observation"]]),
+                              "stage": torch.zeros(100, 1, dtype=torch.long), "reward": torch.zeros(100, 1)}}, batch_size=[100])
+    rew = r(td)["next", "reward"].reshape(-1)
+    assert rew[:50].mean() > rew[50:].mean()
+    state = learner.state_dict()
+    fresh = DrSLearner(DrSReward(1, ["observation"], {"observation": D}, formula="rescaled"), batch_size=64)
+    fresh.load_state_dict(state)
+    assert fresh.updates == 200 and torch.equal(fresh.reward(td)["next", "reward"], r(td)["next", "reward"])

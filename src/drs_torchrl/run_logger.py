@@ -23,6 +23,13 @@ from torchrl.record.loggers import Logger, TensorboardLogger
 __all__ = ["WideCSVLogger", "ResumableTensorboardLogger", "RunLogger", "LoggerConfigError"]
 
 
+def _scalar(value) -> int | float:
+    """Integers (counts, steps) stay integers in the CSV; everything else is a float."""
+    if isinstance(value, int) and not isinstance(value, bool):
+        return value
+    return float(value)
+
+
 class LoggerConfigError(ValueError):
     """A logger setting that cannot work, with the fix in its message."""
 
@@ -105,13 +112,13 @@ class WideCSVLogger(Logger):
 
     def log_scalar(self, name: str, value: float, step: int | None = None) -> None:
         stream, key = self._split(name)
-        self.experiment.write_row(stream, {"step": int(step or 0), key: float(value)})
+        self.experiment.write_row(stream, {"step": int(step or 0), key: _scalar(value)})
 
     def log_metrics(self, metrics, step: int | None = None, *, keys_sep: str = "/") -> dict:
         rows: dict[str, dict] = {}
         for name, value in dict(metrics).items():
             stream, key = self._split(name)
-            rows.setdefault(stream, {"step": int(step or 0)})[key] = float(value)
+            rows.setdefault(stream, {"step": int(step or 0)})[key] = _scalar(value)
         for stream, row in rows.items():
             self.experiment.write_row(stream, row)
         return dict(metrics)
@@ -185,7 +192,7 @@ class RunLogger:
         self.backends.extend(backends)
 
     def log(self, stream: str, step: int, scalars: dict[str, float]) -> None:
-        metrics = {f"{stream}/{k}": float(v) for k, v in scalars.items()}
+        metrics = {f"{stream}/{k}": _scalar(v) for k, v in scalars.items()}
         finite = {k: v for k, v in metrics.items() if math.isfinite(v)}
         for backend in self.backends:
             backend.log_metrics(metrics if isinstance(backend, WideCSVLogger) else finite, step=int(step))

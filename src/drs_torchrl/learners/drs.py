@@ -9,6 +9,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 
 from drs_torchrl.data import StageBuffers
+from drs_torchrl.data.stage_buffers import trajectory_stage
 from drs_torchrl.data.persistence import dump_buffer, load_buffer
 from drs_torchrl.learners.base import RewardLearner
 from drs_torchrl.objectives import DiscriminatorLoss
@@ -28,6 +29,9 @@ class DrSLearner(RewardLearner):
         updates_per_rl_update: discriminator steps per RL update (the authors': 1).
         early_stop_threshold, window, latch: see :class:`~drs_torchrl.objectives.DiscriminatorLoss`.
         demos: successful trajectories (``(T,)`` TensorDicts of states) for the top buffer (line 3).
+        file_successes: False keeps the agent's successful episodes out of the top buffer (they still
+            count towards the early stop), so its positives are the demonstrations alone: the
+            near-optimal success buffer the appendix's tabular argument assumes.
     """
 
     name = "drs"
@@ -35,7 +39,7 @@ class DrSLearner(RewardLearner):
     def __init__(self, reward: DrSReward, *, capacity: int = 1_000_000, batch_size: int = 256, scratch_dir=None,
                  lr: float = 3e-4, fused: bool = False, updates_per_rl_update: int = 1,
                  early_stop_threshold: float | None = 0.95, window: int = 100, latch: bool = True,
-                 demos: list[TensorDictBase] | None = None, **kw):
+                 demos: list[TensorDictBase] | None = None, file_successes: bool = True, **kw):
         super().__init__(**kw)
         self.reward = reward
         self.stage_buffers = StageBuffers(reward.num_stages, reward.reward_in_keys, capacity=int(capacity),
@@ -45,13 +49,20 @@ class DrSLearner(RewardLearner):
         self.optim = torch.optim.Adam(reward.discriminators.parameters(), lr=float(lr), fused=bool(fused))
         self.updates_per_rl_update = int(updates_per_rl_update)
         self.num_demos = 0
+        self.file_successes = bool(file_successes)
         for ep in demos or ():
             self.stage_buffers.add_trajectory(TensorDict({"next": ep}, batch_size=ep.shape), demo=True)
             self.num_demos += 1
 
     def observe(self, batch, episodes):
         if episodes:
-            self.loss.record_episodes([self.stage_buffers.add_trajectory(ep) for ep in episodes])
+            self.loss.record_episodes([self._file(ep) for ep in episodes])
+
+    def _file(self, episode: TensorDictBase) -> int:
+        top = self.reward.num_stages
+        if not self.file_successes and trajectory_stage(episode.get(("next", self.stage_buffers.stage_key))) == top:
+            return top
+        return self.stage_buffers.add_trajectory(episode)
 
     def update(self) -> TensorDict | None:
         out = None

@@ -29,15 +29,19 @@ Choices the paper leaves open, or where this script departs from it (all in ``co
   episodes. Successful episodes end early and so finish more often, which biases this rate upward.
   ``eval_success`` (one greedy episode in each of ``eval.episodes`` grids) is the unbiased figure.
 
-It is a thin script over TorchRL pieces: the batched :class:`~drs_torchrl.envs.maze.ThreeRoomMaze`
-with a :class:`~drs_torchrl.transforms.StageIndicator`, a ``Collector``, a ``ReplayBuffer`` whose
-sampling transform recomputes the learned reward from the current discriminator, a ``QValueActor``
-with an ``EGreedyModule``, ``DQNLoss`` and a ``SoftUpdate``/``HardUpdate`` target network. The
-project's ``StageBuffers``, ``DiscriminatorLoss`` and ``DrSReward`` supply the DrS parts.
+It is a DQN script in the shape of TorchRL's ``sota-implementations``: ``make_*`` factories
+(:func:`make_env`, :func:`make_qnet`, :func:`make_exploration`, :func:`make_replay_buffer`,
+:func:`make_dqn_loss`, :func:`make_reward`) and one loop in :func:`train`. The TorchRL pieces are the
+batched :class:`~drs_torchrl.envs.maze.ThreeRoomMaze` with a :class:`~drs_torchrl.transforms.StageIndicator`,
+a ``Collector``, a ``ReplayBuffer`` (n-step windows, or one-step samples whose learned reward is
+recomputed from the current discriminator), a ``QValueActor`` with an ``EGreedyModule``, ``DQNLoss``
+and a ``SoftUpdate``/``HardUpdate`` target network. DrS itself is the same reward-learning core as the
+SAC families' (:class:`~drs_torchrl.learners.DrSLearner`: stage buffers, ``DiscriminatorLoss``,
+demonstrations), and the run is logged through the same TorchRL loggers. The reward figure,
+diagnostics and report live in :mod:`drs_torchrl.maze_analysis`.
 """
 from __future__ import annotations
 
-import csv
 import json
 import os
 import sys
@@ -50,7 +54,7 @@ import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
-from omegaconf import DictConfig, ListConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictSequential
 from torchrl.collectors import Collector
@@ -61,20 +65,21 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import MLP, EGreedyModule, QValueActor
 from torchrl.objectives import DQNLoss, ValueEstimators
 
-from drs_torchrl.data import StageBuffers, TrajectoryAssembler
-from drs_torchrl.envs.maze import (
-    ACTIONS,
-    convert_observation,
-    GATES,
-    MOVES,
-    OBS_DIMS,
-    SIZE,
-    ThreeRoomMaze,
-    free_cells,
-    make_grid,
-    observation,
+from drs_torchrl.data import TrajectoryAssembler
+from drs_torchrl.envs.maze import ACTIONS, GATES, MOVES, OBS_DIMS, ThreeRoomMaze, convert_observation, observation
+from drs_torchrl.learners import DrSLearner
+from drs_torchrl.maze_analysis import (  # noqa: F401 (re-exported: the maze's analysis and report)
+    MazeConfigError,
+    all_state_actions,
+    dense_reward_table,
+    plot_reward_map,
+    reads_next_state,
+    report,
+    reward_coords,
+    reward_diagnostics,
+    reward_label,
 )
-from drs_torchrl.objectives import DiscriminatorLoss
+from drs_torchrl.run_logger import RunLogger
 from drs_torchrl.transforms import DrSReward, StageIndicator
 
 REWARDS = ("drs", "sparse", "semi_sparse", "dense")
@@ -106,10 +111,6 @@ def terminal_at_window_end(sample: TensorDictBase) -> TensorDictBase:
     sample.set(("next", "terminated"), term)
     sample.set(("next", "done"), sample.get(("next", "done")) | term)
     return sample
-
-
-class MazeConfigError(ValueError):
-    """A ``drs-maze`` setting that cannot work, with the fix in its message."""
 
 
 # ----------------------------------------------------------------------------- reward on (s, a)
@@ -169,126 +170,6 @@ def sa_trajectory(episode: TensorDictBase, stage_key: str = "stage", obs_coords:
         batch_size=episode.batch_size,
     )
     return TensorDict({"next": inner}, batch_size=episode.batch_size)
-
-
-def reads_next_state(reward: DrSReward) -> bool:
-    """Whether a maze reward reads ``s'`` (``reward.input=next_state``) rather than ``(s, a)``."""
-    return reward.metadata.get("reward_on") == "next_state"
-
-
-def reward_coords(reward: DrSReward) -> str:
-    """The coordinate encoding a maze reward was learned with (from its input size)."""
-    dim = reward.in_shapes["observation"]
-    for coords, d in OBS_DIMS.items():
-        if d == dim:
-            return coords
-    raise MazeConfigError(f"a maze reward reads observations of size {sorted(OBS_DIMS.values())}, this one {dim}")
-
-
-def all_state_actions(map_name: str, goal: tuple[int, int], coords: str = "onehot",
-                      next_state: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
-    """Every free cell of a map (``(n, 2)``) and the features ``(n, 5, obs + 5)`` of each of its
-    (state, action) pairs for a given goal cell; with ``next_state``, the observation ``(n, 5, obs)``
-    of the cell each action leads to (walls block)."""
-    grid = make_grid(map_name)
-    cells = free_cells(grid)
-    if next_state:
-        tgt = cells.unsqueeze(1) + MOVES  # (n, 5, 2)
-        nxt = torch.where(grid[tgt[..., 0], tgt[..., 1]].unsqueeze(-1), cells.unsqueeze(1).expand_as(tgt), tgt)
-        return cells, observation(grid, nxt, torch.tensor(goal).expand(*nxt.shape[:-1], 2), coords)
-    obs = observation(grid, cells, torch.tensor(goal).expand(len(cells), 2), coords)
-    eye = torch.eye(len(ACTIONS))
-    feats = torch.cat([obs.unsqueeze(1).expand(-1, len(ACTIONS), -1), eye.expand(len(cells), -1, -1)], -1)
-    return cells, feats
-
-
-def dense_reward_table(reward: DrSReward, map_name: str, goal: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
-    """``R(s, a)`` of every free cell and action at stage 0 (the learned term), ``(n, 5)``."""
-    cells, feats = all_state_actions(map_name, goal, reward_coords(reward), reads_next_state(reward))
-    with torch.no_grad():
-        logits = reward.discriminators(feats)
-        r = reward.combine(logits, torch.zeros(*logits.shape[:-1], 1, dtype=torch.long)).squeeze(-1)
-    return cells, r
-
-
-def reward_diagnostics(reward: DrSReward, map_name: str, max_steps: int) -> dict[str, float]:
-    """How well the reward alone points the way on a map (the appendix's tabular property).
-
-    ``optimal_action_rate``: fraction of (cell, goal) pairs, over every top-room goal and every free
-    cell but the goal, where ``argmax_a R(s, a)`` is a shortest-path action. ``greedy_success``:
-    fraction of (bottom-room start, goal) pairs from which following ``argmax_a R(s, a)`` reaches
-    the goal within ``max_steps``.
-    """
-    env = ThreeRoomMaze(map_name, num_envs=1)
-    dist = env.shortest_distances()  # (goals, 17, 17)
-    grid = env.grid
-    n_opt = n_all = 0
-    greedy = []
-    for gi, goal in enumerate(env.goal_cells.tolist()):
-        cells, r = dense_reward_table(reward, map_name, tuple(goal))
-        best = r.argmax(-1)
-        d = dist[gi]
-        nxt = cells + MOVES[best]
-        blocked = grid[nxt[:, 0], nxt[:, 1]]
-        nxt = torch.where(blocked.unsqueeze(-1), cells, nxt)
-        not_goal = (cells != torch.tensor(goal)).any(-1)
-        optimal = d[nxt[:, 0], nxt[:, 1]] == d[cells[:, 0], cells[:, 1]] - 1
-        n_opt += int((optimal & not_goal).sum())
-        n_all += int(not_goal.sum())
-        table = torch.full((SIZE, SIZE), 4, dtype=torch.long)
-        table[cells[:, 0], cells[:, 1]] = best
-        pos = env.start_cells.clone()
-        done = torch.zeros(len(pos), dtype=torch.bool)
-        for _ in range(max_steps):
-            a = table[pos[:, 0], pos[:, 1]]
-            tgt = pos + MOVES[a]
-            pos = torch.where(grid[tgt[:, 0], tgt[:, 1]].unsqueeze(-1), pos, tgt)
-            done |= (pos == torch.tensor(goal)).all(-1)
-        greedy.append(done.float().mean())
-    return {"optimal_action_rate": n_opt / max(n_all, 1), "greedy_success": float(torch.stack(greedy).mean())}
-
-
-def plot_reward_map(reward: DrSReward, path: str | os.PathLike, goal: tuple[int, int], maps=("train", "test")) -> Path:
-    """The paper's reward figure: in each free cell, the learned reward of each of the five actions.
-
-    Each cell is drawn as a 3x3 block: the up / down / left / right entries sit on the side the
-    move goes to, *stay* in the middle. Lighter is higher. Walls are black and the goal has a red
-    box. The values are ``R(s, a)`` at stage 0, i.e. ``alpha * tanh(D(s, a)) - 2``.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Rectangle
-
-    spot = {0: (0, 1), 1: (2, 1), 2: (1, 0), 3: (1, 2), 4: (1, 1)}  # action -> (row, col) in the block
-    fig, axes = plt.subplots(1, len(maps), figsize=(7 * len(maps) + 1, 7.6), squeeze=False, layout="constrained")
-    tables = [dense_reward_table(reward, m, goal) for m in maps]
-    lo = min(float(r.min()) for _, r in tables)
-    hi = max(float(r.max()) for _, r in tables)
-    for ax, m, (cells, r) in zip(axes[0], maps, tables):
-        img = np.full((SIZE * 3, SIZE * 3), np.nan)
-        for (row, col), vals in zip(cells.tolist(), r.tolist()):
-            for a, (dr, dc) in spot.items():
-                img[row * 3 + dr, col * 3 + dc] = vals[a]
-        walls = np.kron(make_grid(m).numpy().astype(float), np.ones((3, 3)))
-        ax.set_facecolor("0.85")  # block corners (no action) and the background
-        ax.imshow(np.where(walls > 0, 1.0, np.nan), cmap="gray_r", vmin=0, vmax=1, interpolation="nearest")
-        im = ax.imshow(img, cmap="viridis", vmin=lo, vmax=hi if hi > lo else lo + 1e-6, interpolation="nearest")
-        for k in range(SIZE + 1):  # cell borders
-            ax.axhline(k * 3 - 0.5, color="white", linewidth=0.6)
-            ax.axvline(k * 3 - 0.5, color="white", linewidth=0.6)
-        ax.add_patch(Rectangle((goal[1] * 3 - 0.5, goal[0] * 3 - 0.5), 3, 3, fill=False, edgecolor="red", linewidth=2))
-        ax.set_title(f"{m} map (gates at columns {GATES[m]})")
-        ax.set_xticks([])
-        ax.set_yticks([])
-    fig.colorbar(im, ax=axes[0].tolist(), shrink=0.9, label="R(s, a) at stage 0")
-    fig.suptitle("Learned reward R(s, a) per cell (lighter = higher): up / down / left / right on that side of the cell,\n"
-                 "stay in the middle; red box = goal")
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
 
 
 # ----------------------------------------------------------------------------- building blocks
@@ -390,6 +271,67 @@ def validate(cfg: DictConfig) -> None:
         raise MazeConfigError("; ".join(bad))
 
 
+# ----------------------------------------------------------------------------- factories
+def make_reward(cfg: DictConfig, map_name: str, learn: bool) -> tuple[DrSLearner | None, DrSReward | None]:
+    """The DrS reward of the run: learned here by a :class:`~drs_torchrl.learners.DrSLearner` (phase 1,
+    the same reward-learning core as the SAC families), frozen from a checkpoint (phase 2), or none
+    (a baseline written by the env)."""
+    r = cfg.reward
+    if r.name != "drs":
+        return None, None
+    if not learn:
+        drs = DrSReward.from_checkpoint(r.checkpoint)
+        meta = drs.metadata
+        if meta.get("family") != FAMILY or drs.num_stages != 1 or drs.reward_in_keys not in (["observation", "action"], ["observation"]):
+            raise MazeConfigError(f"{r.checkpoint} is not a maze reward (family {meta.get('family')!r}, inputs {drs.reward_in_keys})")
+        if not _convertible(cfg.coords, reward_coords(drs)):
+            raise MazeConfigError(f"{r.checkpoint} was learned with coords={reward_coords(drs)}, which this run's "
+                                  f"coords={cfg.coords} observations cannot be re-encoded to; use coords={reward_coords(drs)}")
+        if r.get("reuse_offset") is not None:  # shift the frozen reward (the learned term is unchanged)
+            drs.offset = float(r.reuse_offset)
+        if r.get("reuse_alpha") is not None:  # reweight the learned term; 0 leaves DrS's constant part (the control)
+            drs.alpha = float(r.reuse_alpha)
+        return None, drs.requires_grad_(False)
+    rc = r.get("coords") or cfg.coords
+    on_next = r.get("input", "state_action") == "next_state"
+    shapes = {"observation": OBS_DIMS[rc]} if on_next else {"observation": OBS_DIMS[rc], "action": len(ACTIONS)}
+    drs = DrSReward(1, list(shapes), shapes, formula=r.formula, alpha=r.alpha, offset=r.offset, hidden=list(r.hidden),
+                    activation=r.activation,
+                    metadata={"family": FAMILY, "map": map_name, "reward_on": "next_state" if on_next else "state_action",
+                              "coords": rc, "seed": int(cfg.seed), "positives": r.get("positives", "all")})
+    demos = [ep.get("next") for ep in demo_episodes(map_name, int(cfg.demos), int(cfg.seed), rc, on_next)] if cfg.demos else []
+    learner = DrSLearner(drs, capacity=r.stage_buffer_size, batch_size=r.disc.batch_size, lr=r.disc.lr,
+                         updates_per_rl_update=r.disc.updates_per_dqn_update, early_stop_threshold=r.disc.early_stop_threshold,
+                         window=r.disc.window, demos=demos, file_successes=r.get("positives", "all") == "all")
+    return learner, drs
+
+
+def make_replay_buffer(cfg: DictConfig, drs: DrSReward | None) -> ReplayBuffer:
+    """n-step windows (TorchRL's ``MultiStepTransform``) over a ``(T, envs)`` storage, or single steps
+    whose DrS reward is recomputed from the current discriminator at every sample (Algorithm 1)."""
+    d = cfg.dqn
+    if int(d.n_steps) > 1:
+        return ReplayBuffer(storage=LazyTensorStorage(int(d.buffer_size), ndim=2), batch_size=int(d.batch_size),
+                            transform=MultiStepTransform(int(d.n_steps), float(d.gamma)))
+    scale = float(d.get("reward_scale", 1.0))
+    return ReplayBuffer(storage=LazyTensorStorage(int(d.buffer_size)), batch_size=int(d.batch_size),
+                        transform=StateActionReward(drs, cfg.coords, scale) if drs is not None else None)
+
+
+def make_exploration(cfg: DictConfig, action_spec) -> EGreedyModule:
+    d = cfg.dqn
+    return EGreedyModule(action_spec, eps_init=d.eps_init, eps_end=d.eps_end,
+                         annealing_num_steps=max(1, int(d.eps_anneal_frac * cfg.total_frames)))
+
+
+def make_dqn_loss(cfg: DictConfig, actor: QValueActor, action_spec):
+    """TorchRL's ``DQNLoss`` (double DQN by default) with its target updater and Adam."""
+    d = cfg.dqn
+    loss = DQNLoss(actor, action_space=action_spec, delay_value=True, double_dqn=bool(d.double_dqn), loss_function=d.loss_function)
+    loss.make_value_estimator(ValueEstimators.TD0, gamma=float(d.gamma))
+    return loss, instantiate(d.target_update)(loss), torch.optim.Adam(loss.parameters(), lr=float(d.lr))
+
+
 # ----------------------------------------------------------------------------- training
 def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
     """Phase 1 or phase 2 (or a baseline) of the maze experiment; writes into ``run_dir``."""
@@ -398,173 +340,127 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
     torch.set_num_threads(int(cfg.num_threads))
     torch.manual_seed(int(cfg.seed))
     np.random.seed(int(cfg.seed))
-    learn = cfg.phase == "learn"
+    learn, d = cfg.phase == "learn", cfg.dqn
     map_name = cfg.map or ("train" if learn else "test")
-    rname = cfg.reward.name
-
-    d = cfg.dqn
-    n_steps = int(d.n_steps)
-
-    # reward: learned in this run, frozen from a checkpoint, or a baseline written by the env
-    drs = buffers = disc_loss = disc_opt = rc = None  # rc: the coordinate encoding the learned reward reads
-    if rname == "drs":
-        r = cfg.reward
-        if learn:
-            rc = r.get("coords") or cfg.coords
-            on_next = r.get("input", "state_action") == "next_state"
-            keys = ["observation"] if on_next else ["observation", "action"]
-            drs = DrSReward(1, keys, {"observation": OBS_DIMS[rc], "action": len(ACTIONS)} if not on_next else {"observation": OBS_DIMS[rc]},
-                            formula=r.formula, alpha=r.alpha, offset=r.offset, hidden=list(r.hidden), activation=r.activation,
-                            metadata={"family": FAMILY, "map": map_name, "reward_on": "next_state" if on_next else "state_action",
-                                      "coords": rc, "seed": int(cfg.seed), "positives": r.get("positives", "all")})
-            buffers = StageBuffers(1, keys, capacity=r.stage_buffer_size, batch_size=r.disc.batch_size)
-            disc_loss = DiscriminatorLoss(drs.discriminators, keys, early_stop_threshold=r.disc.early_stop_threshold,
-                                          window=r.disc.window)
-            disc_opt = torch.optim.Adam(drs.discriminators.parameters(), lr=r.disc.lr)
-            for ep in demo_episodes(map_name, int(cfg.demos), int(cfg.seed), rc, on_next) if cfg.demos else []:
-                buffers.add_trajectory(ep, demo=True)
-        else:
-            drs = DrSReward.from_checkpoint(r.checkpoint)
-            meta = drs.metadata
-            if meta.get("family") != FAMILY or drs.num_stages != 1 or drs.reward_in_keys not in (["observation", "action"], ["observation"]):
-                raise MazeConfigError(f"{r.checkpoint} is not a maze reward (family {meta.get('family')!r}, inputs {drs.reward_in_keys})")
-            if not _convertible(cfg.coords, reward_coords(drs)):
-                raise MazeConfigError(f"{r.checkpoint} was learned with coords={reward_coords(drs)}, which this run's "
-                                      f"coords={cfg.coords} observations cannot be re-encoded to; use coords={reward_coords(drs)}")
-            if r.get("reuse_offset") is not None:  # shift the frozen reward (the learned term is unchanged)
-                drs.offset = float(r.reuse_offset)
-            if r.get("reuse_alpha") is not None:  # reweight the learned term; 0 leaves DrS's constant part (the control)
-                drs.alpha = float(r.reuse_alpha)
-            drs.requires_grad_(False)
+    learner, drs = make_reward(cfg, map_name, learn)
     # the run directory is written only once the reward (and its checkpoint) is known to be usable
     run_dir.mkdir(parents=True, exist_ok=True)
     OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
-    # 1-step TD: the DrS reward is recomputed from the current discriminator when the agent samples
-    # (Algorithm 1). n-step TD: rewards are summed when the transitions are stored, so the env
-    # writes R(s, a) with the discriminator of the moment (see the module docstring).
-    env_drs = drs if (drs is not None and n_steps > 1) else None
-    scale = float(d.get("reward_scale", 1.0))
-    env = make_env(map_name, cfg.num_envs, cfg.max_steps, cfg.seed, rname, cfg.coords, env_drs, float(cfg.reward.dense_coef), scale)
-    eval_env = make_env(map_name, cfg.eval.episodes, cfg.max_steps, cfg.seed + 10_000, rname, cfg.coords)
+    n_steps, scale = int(d.n_steps), float(d.get("reward_scale", 1.0))
+    # n-step sums are formed when transitions are stored, so then the env writes R(s, a) (see the module docstring)
+    env = make_env(map_name, cfg.num_envs, cfg.max_steps, cfg.seed, cfg.reward.name, cfg.coords, drs if n_steps > 1 else None,
+                   float(cfg.reward.dense_coef), scale)
+    eval_env = make_env(map_name, cfg.eval.episodes, cfg.max_steps, cfg.seed + 10_000, cfg.reward.name, cfg.coords)
     actor = make_qnet(cfg, env.action_spec)
-    explore = EGreedyModule(env.action_spec, eps_init=d.eps_init, eps_end=d.eps_end,
-                            annealing_num_steps=max(1, int(d.eps_anneal_frac * cfg.total_frames)))
-    policy = TensorDictSequential(actor, explore)
-    if n_steps > 1:
-        rb = ReplayBuffer(storage=LazyTensorStorage(int(d.buffer_size), ndim=2), batch_size=int(d.batch_size),
-                          transform=MultiStepTransform(n_steps, float(d.gamma)))
-    else:
-        rb = ReplayBuffer(storage=LazyTensorStorage(int(d.buffer_size)), batch_size=int(d.batch_size),
-                          transform=StateActionReward(drs, cfg.coords, scale) if drs is not None else None)
-
-    loss = DQNLoss(actor, action_space=env.action_spec, delay_value=True, double_dqn=bool(d.double_dqn), loss_function=d.loss_function)
-    loss.make_value_estimator(ValueEstimators.TD0, gamma=float(d.gamma))
-    target = instantiate(d.target_update)(loss)
-    opt = torch.optim.Adam(loss.parameters(), lr=float(d.lr))
-    collector = Collector(env, policy, frames_per_batch=int(d.frames_per_batch), total_frames=int(cfg.total_frames),
-                          auto_register_policy_transforms=False)
-    assembler = TrajectoryAssembler()
-
-    episodes: deque = deque(maxlen=100)
-    rows, window, frames, updates, disc_updates, owed = [], _Window(), 0, 0, 0, 0.0
-    next_eval = 0
-    t0, cpu0 = time.perf_counter(), time.process_time()
-    columns = ["frames", "wall_s", "updates", "epsilon", "eval_success", "eval_length", "train_success", "train_length",
-               "dqn_loss", "reward_mean"]
-    if buffers is not None:
-        columns += ["disc_loss", "disc_accuracy", "success_buffer", "failure_buffer", "disc_updates", "disc_active"]
-    log_path = run_dir / "train.csv"
-    with open(log_path, "w", newline="") as f:
-        csv.DictWriter(f, fieldnames=columns).writeheader()
-
-    def log_row():
-        row = {"frames": frames, "wall_s": round(time.perf_counter() - t0, 2), "updates": updates, "epsilon": float(explore.eps),
-               **evaluate(actor, eval_env)}
-        row["train_success"] = float(np.mean([s for s, _ in episodes])) if episodes else float("nan")
-        row["train_length"] = float(np.mean([n for _, n in episodes])) if episodes else float("nan")
-        row.update(window.flush())
-        if buffers is not None:
-            counts = buffers.stage_counts()
-            row.update(success_buffer=int(counts[1]), failure_buffer=int(counts[0]), disc_updates=disc_updates,
-                       disc_active=float(disc_loss.training_mask()[0]))
-        with open(log_path, "a", newline="") as f:
-            csv.DictWriter(f, fieldnames=columns, restval="nan").writerow(row)
-        rows.append(row)
-        if cfg.verbose:
-            print(f"[{row['wall_s']:7.1f}s] frames {frames:7d}  eval success {row['eval_success']:.2f}  train success "
-                  f"{row['train_success']:.2f}  eps {row['epsilon']:.2f}", flush=True)
-
+    explore = make_exploration(cfg, env.action_spec)
+    rb = make_replay_buffer(cfg, drs)
+    loss, target, opt = make_dqn_loss(cfg, actor, env.action_spec)
+    collector = Collector(env, TensorDictSequential(actor, explore), frames_per_batch=int(d.frames_per_batch),
+                          total_frames=int(cfg.total_frames), auto_register_policy_transforms=False)
+    log = _MazeLog(cfg, run_dir, actor, eval_env, explore, learner)
+    assembler, frames, owed = TrajectoryAssembler(), 0, 0.0
+    rc = reward_coords(drs) if drs is not None else None
     try:
         for batch in collector:
-            if frames >= next_eval:
-                log_row()
-                next_eval += int(cfg.eval.interval)
-            n = batch.numel()
-            frames += n
-            if n_steps > 1:
-                rb.extend(mark_terminal_obs(batch.select(*RB_KEYS)))
-            else:
-                rb.extend(batch.reshape(-1).select(*RB_KEYS))
-            for ep in assembler.add(batch):
-                stage = int(ep.get(("next", "stage")).max())
-                episodes.append((stage, ep.shape[0]))
-                if buffers is not None:
-                    if stage == 0 or cfg.reward.get("positives", "all") == "all":  # positives=demos: agent successes not filed
-                        buffers.add_trajectory(sa_trajectory(ep, obs_coords=cfg.coords, reward_coords=rc,
-                                                             next_state=reads_next_state(drs)))
-                    disc_loss.record_episodes([stage])
-            explore.step(n)
-            if frames < int(d.learning_starts):
-                continue
-            owed += float(d.utd) * n
+            log.maybe_row(frames)
+            frames += batch.numel()
+            rb.extend(mark_terminal_obs(batch.select(*RB_KEYS)) if n_steps > 1 else batch.reshape(-1).select(*RB_KEYS))
+            episodes = assembler.add(batch)
+            log.episodes(episodes)
+            if learner is not None:  # Algorithm 1: every finished episode into the stage buffers
+                learner.observe(batch, [sa_trajectory(ep, obs_coords=cfg.coords, reward_coords=rc, next_state=reads_next_state(drs))
+                                        for ep in episodes])
+            explore.step(batch.numel())
+            owed += float(d.utd) * batch.numel() if frames >= int(d.learning_starts) else 0.0
             while owed >= 1:
                 owed -= 1
                 sample = rb.sample()
-                if n_steps > 1:
-                    sample = terminal_at_window_end(sample)
-                out = loss(sample)
+                out = loss(terminal_at_window_end(sample) if n_steps > 1 else sample)
                 opt.zero_grad(set_to_none=True)
                 out["loss"].backward()
                 torch.nn.utils.clip_grad_norm_(loss.parameters(), float(d.grad_clip))
                 opt.step()
                 target.step()
-                updates += 1
-                r1 = sample.get(("next", "original_reward"), None) if n_steps > 1 else None
-                window.add(dqn_loss=float(out["loss"].detach()), reward_mean=float((r1 if r1 is not None else sample.get(("next", "reward"))).mean()))
-                if buffers is not None and buffers.valid_discriminators().all():
-                    for _ in range(int(cfg.reward.disc.updates_per_dqn_update)):
-                        dout = disc_loss(buffers.sample_discriminator_batch())
-                        if dout["loss_discriminator"].requires_grad:
-                            disc_opt.zero_grad(set_to_none=True)
-                            dout["loss_discriminator"].backward()
-                            disc_opt.step()
-                            disc_updates += 1
-                        window.add(disc_loss=float(dout["loss_0"]), disc_accuracy=float(dout["accuracy_0"]))
-        log_row()
+                log.update(out, sample, learner.update() if learner is not None else None)
+        log.maybe_row(frames, force=True)
     finally:
         collector.shutdown()
+        log.close()
+    return log.finish(frames, map_name, drs, learner)
 
-    wall = time.perf_counter() - t0
-    summary = {
-        "phase": cfg.phase, "map": map_name, "reward": rname, "reward_scale": scale, "seed": int(cfg.seed),
-        "reward_input": ("next_state" if reads_next_state(drs) else "state_action") if drs is not None else None,
-        "reward_alpha": drs.alpha if drs is not None else None,
-        "reward_coords": reward_coords(drs) if (drs is not None and reward_coords(drs) != cfg.coords) else None, "frames": frames, "updates": updates,
-        "wall_time_s": round(wall, 1), "cpu_time_s": round(time.process_time() - cpu0, 1), "env_steps_per_s": round(frames / wall, 1),
-        "final_eval_success": rows[-1]["eval_success"], "final_eval_length": rows[-1]["eval_length"],
-        "mean_eval_success_last3": float(np.mean([r["eval_success"] for r in rows[-3:]])),
-    }
-    torch.save(actor.state_dict(), run_dir / "policy.pt")
-    if drs is not None:
-        if learn:
-            summary["reward_checkpoint"] = str(drs.save(run_dir / "reward.pt"))
-            summary["disc_updates"] = disc_updates
-            summary["stage_buffer_counts"] = buffers.stage_counts().tolist()
-        maps = ("train", map_name if map_name != "train" else "test")
-        summary["reward_map"] = str(plot_reward_map(drs, run_dir / "reward_map.png", tuple(cfg.plot_goal), maps))
-        summary["reward_diagnostics"] = {m: reward_diagnostics(drs, m, cfg.max_steps) for m in GATES}
-    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
-    return summary
+
+class _MazeLog:
+    """The maze run's record: greedy evaluations every ``eval.interval`` env steps, training
+    success, DQN and discriminator statistics, through :class:`~drs_torchrl.run_logger.RunLogger`
+    (``train.csv``, TensorBoard under ``tb/``), then ``summary.json``, ``policy.pt`` and the
+    reward checkpoint and figure."""
+
+    def __init__(self, cfg, run_dir: Path, actor, eval_env, explore, learner):
+        self.cfg, self.run_dir, self.actor, self.eval_env, self.explore, self.learner = cfg, run_dir, actor, eval_env, explore, learner
+        self.logger = RunLogger(run_dir, tensorboard=bool(cfg.get("tensorboard", True)), csv_files=True)
+        self.recent: deque = deque(maxlen=100)
+        self.window, self.rows, self.updates, self.next_eval = _Window(), [], 0, 0
+        self.t0, self.cpu0 = time.perf_counter(), time.process_time()
+
+    def episodes(self, episodes) -> None:
+        for ep in episodes:
+            self.recent.append((int(ep.get(("next", "stage")).max()), ep.shape[0]))
+
+    def update(self, dqn_out, sample, disc_out) -> None:
+        self.updates += 1
+        r1 = sample.get(("next", "original_reward"), None)  # n-step windows keep the one-step reward here
+        self.window.add(dqn_loss=float(dqn_out["loss"].detach()), reward_mean=float((r1 if r1 is not None else sample.get(("next", "reward"))).mean()))
+        if disc_out is not None:
+            self.window.add(disc_loss=float(disc_out["loss_0"]), disc_accuracy=float(disc_out["accuracy_0"]))
+
+    def maybe_row(self, frames: int, force: bool = False) -> None:
+        if frames < self.next_eval and not force:
+            return
+        self.next_eval += int(self.cfg.eval.interval)
+        row = {"frames": frames, "wall_s": round(time.perf_counter() - self.t0, 2), "updates": self.updates,
+               "epsilon": float(self.explore.eps), **evaluate(self.actor, self.eval_env),
+               "train_success": float(np.mean([s for s, _ in self.recent])) if self.recent else float("nan"),
+               "train_length": float(np.mean([n for _, n in self.recent])) if self.recent else float("nan"),
+               "dqn_loss": float("nan"), "reward_mean": float("nan"), **self.window.flush()}
+        if self.learner is not None:
+            counts = self.learner.stage_buffers.stage_counts()
+            row.update(success_buffer=int(counts[1]), failure_buffer=int(counts[0]), disc_updates=self.learner.updates,
+                       disc_active=float(self.learner.loss.training_mask()[0]))
+            row.setdefault("disc_loss", float("nan"))
+            row.setdefault("disc_accuracy", float("nan"))
+        self.logger.log("train", frames, row)
+        self.rows.append(row)
+        if self.cfg.verbose:
+            print(f"[{row['wall_s']:7.1f}s] frames {frames:7d}  eval success {row['eval_success']:.2f}  train success "
+                  f"{row['train_success']:.2f}  eps {row['epsilon']:.2f}", flush=True)
+
+    def close(self) -> None:
+        self.logger.close()
+
+    def finish(self, frames: int, map_name: str, drs: DrSReward | None, learner: DrSLearner | None) -> dict:
+        cfg, wall = self.cfg, time.perf_counter() - self.t0
+        summary = {
+            "phase": cfg.phase, "map": map_name, "reward": cfg.reward.name, "reward_scale": float(cfg.dqn.get("reward_scale", 1.0)),
+            "seed": int(cfg.seed),
+            "reward_input": ("next_state" if reads_next_state(drs) else "state_action") if drs is not None else None,
+            "reward_alpha": drs.alpha if drs is not None else None,
+            "reward_coords": reward_coords(drs) if (drs is not None and reward_coords(drs) != cfg.coords) else None,
+            "frames": frames, "updates": self.updates, "wall_time_s": round(wall, 1),
+            "cpu_time_s": round(time.process_time() - self.cpu0, 1), "env_steps_per_s": round(frames / wall, 1),
+            "final_eval_success": self.rows[-1]["eval_success"], "final_eval_length": self.rows[-1]["eval_length"],
+            "mean_eval_success_last3": float(np.mean([r["eval_success"] for r in self.rows[-3:]])),
+        }
+        torch.save(self.actor.state_dict(), self.run_dir / "policy.pt")
+        if learner is not None:
+            summary["reward_checkpoint"] = str(drs.save(self.run_dir / "reward.pt"))
+            summary["disc_updates"] = learner.updates
+            summary["stage_buffer_counts"] = learner.stage_buffers.stage_counts().tolist()
+        if drs is not None:
+            maps = ("train", map_name if map_name != "train" else "test")
+            summary["reward_map"] = str(plot_reward_map(drs, self.run_dir / "reward_map.png", tuple(cfg.plot_goal), maps))
+            summary["reward_diagnostics"] = {m: reward_diagnostics(drs, m, cfg.max_steps) for m in GATES}
+        (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+        return summary
 
 
 class _Window:
@@ -581,95 +477,6 @@ class _Window:
         out = {k: float(np.mean(v)) if v else float("nan") for k, v in self.values.items()}
         self.values = {k: [] for k in self.values}
         return out
-
-
-# ----------------------------------------------------------------------------- report
-def reward_label(summary: dict) -> str:
-    """The reward's name in reports, with what the learned reward reads when that is not the agent's
-    observation (``reward.coords``, e.g. ``drs[patch]``) and ``dqn.reward_scale`` when it is not 1."""
-    name = summary["reward"]
-    if name == "drs":
-        tags = [summary["reward_coords"]] if summary.get("reward_coords") else []
-        if summary.get("reward_input") == "next_state":
-            tags.append("s'")
-        name = f"drs[{', '.join(tags)}]" if tags else name
-        if summary.get("phase") == "reuse" and summary.get("reward_alpha") == 0:
-            name = f"{name} constant part (alpha=0)"
-    scale = float(summary.get("reward_scale", 1.0))
-    return name if scale == 1.0 else f"{name} x{scale:g}"
-
-
-def report(root, out: str | os.PathLike) -> dict:
-    """Gather ``summary.json`` / ``train.csv`` of every run under ``root`` (a folder, or a list of
-    folders) into ``out``: ``curves.csv`` (every eval row of every run), ``curves.png`` (mean and
-    std over seeds of the eval success rate against env steps) and ``table.md`` (final success
-    rates per seed). Runs are grouped by phase and reward (with its scale, :func:`reward_label`)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    roots = [Path(r) for r in (root if isinstance(root, (list, tuple, ListConfig)) else [root])]
-    out = Path(out)
-    runs = []
-    for s in sorted(p for r in roots for p in r.rglob("summary.json")):
-        summ = json.loads(s.read_text())
-        if "reward_scale" not in summ and (s.parent / "config.yaml").exists():  # runs written before the fields existed
-            c = OmegaConf.load(s.parent / "config.yaml")
-            summ["reward_scale"] = float(c.dqn.get("reward_scale", 1.0))
-            summ["reward_coords"] = c.reward.get("coords")
-        with open(s.parent / "train.csv") as f:
-            rows = list(csv.DictReader(f))
-        runs.append((summ, rows, s.parent))
-    if not runs:
-        raise MazeConfigError(f"no runs (summary.json) under {', '.join(map(str, roots))}")
-    out.mkdir(parents=True, exist_ok=True)
-    with open(out / "curves.csv", "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["phase", "map", "reward", "seed", "frames", "eval_success", "eval_length", "train_success"])
-        for summ, rows, _ in runs:
-            for r in rows:
-                w.writerow([summ["phase"], summ["map"], reward_label(summ), summ["seed"], r["frames"], r["eval_success"], r["eval_length"], r["train_success"]])
-    groups: dict[tuple[str, str], list] = {}
-    for summ, rows, d in runs:
-        groups.setdefault((summ["phase"], summ["map"], reward_label(summ)), []).append((summ, rows, d))
-    many_maps = {ph: len({m for p, m, _ in groups if p == ph}) > 1 for ph, _, _ in groups}
-    panels = [("learn", "phase 1: DrS reward learning (train map)"), ("reuse", "phase 2: fresh DQN on the test map")]
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
-    table = ["| phase | map | reward | seeds | env steps | eval success at the end (per seed) | mean +- std | mean over the last 3 evals | wall time per run (s) |",
-             "|---|---|---|---|---|---|---|---|---|"]
-    for ax, (phase, title) in zip(axes, panels):
-        for (ph, map_name, rname), members in sorted(groups.items()):
-            if ph != phase:
-                continue
-            legend = f"{rname} on {map_name}" if many_maps[ph] else rname
-            frames = np.array([float(r["frames"]) for r in members[0][1]])
-            n = min(len(m[1]) for m in members)
-            curves = np.array([[float(r["eval_success"]) for r in m[1][:n]] for m in members])
-            mean, std = curves.mean(0), curves.std(0)
-            ax.plot(frames[:n], mean, label=f"{legend} ({len(members)} seeds)")
-            ax.fill_between(frames[:n], mean - std, mean + std, alpha=0.25)
-            finals = [m[0]["final_eval_success"] for m in members]
-            last3 = [m[0]["mean_eval_success_last3"] for m in members]
-            table.append(f"| {phase} | {members[0][0]['map']} | {rname} | {', '.join(str(m[0]['seed']) for m in members)} | "
-                         f"{members[0][0]['frames']} | {', '.join(f'{x:.2f}' for x in finals)} | {np.mean(finals):.2f} +- {np.std(finals):.2f} | "
-                         f"{np.mean(last3):.2f} | {np.mean([m[0]['wall_time_s'] for m in members]):.0f} |")
-        ax.set_title(title if not many_maps.get(phase) else title.split(" on the ")[0] + " (map in the legend)")
-        ax.set_xlabel("env steps")
-        ax.set_ylabel("greedy eval success rate")
-        ax.set_ylim(-0.05, 1.05)
-        ax.grid(alpha=0.3)
-        ax.legend(loc="upper left")
-    fig.tight_layout()
-    fig.savefig(out / "curves.png", dpi=110)
-    plt.close(fig)
-    diag = ["", "| learned reward (seed) | map | argmax_a R(s,a) is a shortest-path action | greedy on R reaches the goal |", "|---|---|---|---|"]
-    for summ, _, _ in runs:
-        if summ["phase"] == "learn" and "reward_diagnostics" in summ:
-            for m, v in summ["reward_diagnostics"].items():
-                diag.append(f"| {reward_label(summ)} {summ['seed']} | {m} | {v['optimal_action_rate']:.2f} | {v['greedy_success']:.2f} |")
-    (out / "table.md").write_text("\n".join(table + diag) + "\n")
-    return {"runs": len(runs), "out": str(out)}
 
 
 # ----------------------------------------------------------------------------- CLI

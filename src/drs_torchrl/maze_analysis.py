@@ -1,0 +1,232 @@
+"""What a learned maze reward says, and the maze study's report (``drs-maze phase=report``).
+
+* :func:`reward_diagnostics`: the appendix's tabular property on a map: how often ``argmax_a R(s, a)``
+  is a shortest-path move, and whether greedy ascent on ``R`` alone reaches the goal.
+* :func:`plot_reward_map`: the paper's reward figure (five values per cell).
+* :func:`report`: curves, CSV and table of a folder of runs.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import torch
+from omegaconf import ListConfig, OmegaConf
+
+from drs_torchrl.envs.maze import ACTIONS, GATES, MOVES, OBS_DIMS, SIZE, ThreeRoomMaze, free_cells, make_grid, observation
+from drs_torchrl.transforms import DrSReward
+
+
+class MazeConfigError(ValueError):
+    """A ``drs-maze`` setting that cannot work, with the fix in its message."""
+
+
+def reads_next_state(reward: DrSReward) -> bool:
+    """Whether a maze reward reads ``s'`` (``reward.input=next_state``) rather than ``(s, a)``."""
+    return reward.metadata.get("reward_on") == "next_state"
+
+
+def reward_coords(reward: DrSReward) -> str:
+    """The coordinate encoding a maze reward was learned with (from its input size)."""
+    dim = reward.in_shapes["observation"]
+    for coords, d in OBS_DIMS.items():
+        if d == dim:
+            return coords
+    raise MazeConfigError(f"a maze reward reads observations of size {sorted(OBS_DIMS.values())}, this one {dim}")
+
+
+def all_state_actions(map_name: str, goal: tuple[int, int], coords: str = "onehot",
+                      next_state: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+    """Every free cell of a map (``(n, 2)``) and the features ``(n, 5, obs + 5)`` of each of its
+    (state, action) pairs for a given goal cell; with ``next_state``, the observation ``(n, 5, obs)``
+    of the cell each action leads to (walls block)."""
+    grid = make_grid(map_name)
+    cells = free_cells(grid)
+    if next_state:
+        tgt = cells.unsqueeze(1) + MOVES  # (n, 5, 2)
+        nxt = torch.where(grid[tgt[..., 0], tgt[..., 1]].unsqueeze(-1), cells.unsqueeze(1).expand_as(tgt), tgt)
+        return cells, observation(grid, nxt, torch.tensor(goal).expand(*nxt.shape[:-1], 2), coords)
+    obs = observation(grid, cells, torch.tensor(goal).expand(len(cells), 2), coords)
+    eye = torch.eye(len(ACTIONS))
+    feats = torch.cat([obs.unsqueeze(1).expand(-1, len(ACTIONS), -1), eye.expand(len(cells), -1, -1)], -1)
+    return cells, feats
+
+
+def dense_reward_table(reward: DrSReward, map_name: str, goal: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
+    """``R(s, a)`` of every free cell and action at stage 0 (the learned term), ``(n, 5)``."""
+    cells, feats = all_state_actions(map_name, goal, reward_coords(reward), reads_next_state(reward))
+    with torch.no_grad():
+        logits = reward.discriminators(feats)
+        r = reward.combine(logits, torch.zeros(*logits.shape[:-1], 1, dtype=torch.long)).squeeze(-1)
+    return cells, r
+
+
+def reward_diagnostics(reward: DrSReward, map_name: str, max_steps: int) -> dict[str, float]:
+    """How well the reward alone points the way on a map (the appendix's tabular property).
+
+    ``optimal_action_rate``: fraction of (cell, goal) pairs, over every top-room goal and every free
+    cell but the goal, where ``argmax_a R(s, a)`` is a shortest-path action. ``greedy_success``:
+    fraction of (bottom-room start, goal) pairs from which following ``argmax_a R(s, a)`` reaches
+    the goal within ``max_steps``.
+    """
+    env = ThreeRoomMaze(map_name, num_envs=1)
+    dist = env.shortest_distances()  # (goals, 17, 17)
+    grid = env.grid
+    n_opt = n_all = 0
+    greedy = []
+    for gi, goal in enumerate(env.goal_cells.tolist()):
+        cells, r = dense_reward_table(reward, map_name, tuple(goal))
+        best = r.argmax(-1)
+        d = dist[gi]
+        nxt = cells + MOVES[best]
+        blocked = grid[nxt[:, 0], nxt[:, 1]]
+        nxt = torch.where(blocked.unsqueeze(-1), cells, nxt)
+        not_goal = (cells != torch.tensor(goal)).any(-1)
+        optimal = d[nxt[:, 0], nxt[:, 1]] == d[cells[:, 0], cells[:, 1]] - 1
+        n_opt += int((optimal & not_goal).sum())
+        n_all += int(not_goal.sum())
+        table = torch.full((SIZE, SIZE), 4, dtype=torch.long)
+        table[cells[:, 0], cells[:, 1]] = best
+        pos = env.start_cells.clone()
+        done = torch.zeros(len(pos), dtype=torch.bool)
+        for _ in range(max_steps):
+            a = table[pos[:, 0], pos[:, 1]]
+            tgt = pos + MOVES[a]
+            pos = torch.where(grid[tgt[:, 0], tgt[:, 1]].unsqueeze(-1), pos, tgt)
+            done |= (pos == torch.tensor(goal)).all(-1)
+        greedy.append(done.float().mean())
+    return {"optimal_action_rate": n_opt / max(n_all, 1), "greedy_success": float(torch.stack(greedy).mean())}
+
+
+def plot_reward_map(reward: DrSReward, path: str | os.PathLike, goal: tuple[int, int], maps=("train", "test")) -> Path:
+    """The paper's reward figure: in each free cell, the learned reward of each of the five actions.
+
+    Each cell is drawn as a 3x3 block: the up / down / left / right entries sit on the side the
+    move goes to, *stay* in the middle. Lighter is higher. Walls are black and the goal has a red
+    box. The values are ``R(s, a)`` at stage 0, i.e. ``alpha * tanh(D(s, a)) - 2``.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Rectangle
+
+    spot = {0: (0, 1), 1: (2, 1), 2: (1, 0), 3: (1, 2), 4: (1, 1)}  # action -> (row, col) in the block
+    fig, axes = plt.subplots(1, len(maps), figsize=(7 * len(maps) + 1, 7.6), squeeze=False, layout="constrained")
+    tables = [dense_reward_table(reward, m, goal) for m in maps]
+    lo = min(float(r.min()) for _, r in tables)
+    hi = max(float(r.max()) for _, r in tables)
+    for ax, m, (cells, r) in zip(axes[0], maps, tables):
+        img = np.full((SIZE * 3, SIZE * 3), np.nan)
+        for (row, col), vals in zip(cells.tolist(), r.tolist()):
+            for a, (dr, dc) in spot.items():
+                img[row * 3 + dr, col * 3 + dc] = vals[a]
+        walls = np.kron(make_grid(m).numpy().astype(float), np.ones((3, 3)))
+        ax.set_facecolor("0.85")  # block corners (no action) and the background
+        ax.imshow(np.where(walls > 0, 1.0, np.nan), cmap="gray_r", vmin=0, vmax=1, interpolation="nearest")
+        im = ax.imshow(img, cmap="viridis", vmin=lo, vmax=hi if hi > lo else lo + 1e-6, interpolation="nearest")
+        for k in range(SIZE + 1):  # cell borders
+            ax.axhline(k * 3 - 0.5, color="white", linewidth=0.6)
+            ax.axvline(k * 3 - 0.5, color="white", linewidth=0.6)
+        ax.add_patch(Rectangle((goal[1] * 3 - 0.5, goal[0] * 3 - 0.5), 3, 3, fill=False, edgecolor="red", linewidth=2))
+        ax.set_title(f"{m} map (gates at columns {GATES[m]})")
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.colorbar(im, ax=axes[0].tolist(), shrink=0.9, label="R(s, a) at stage 0")
+    fig.suptitle("Learned reward R(s, a) per cell (lighter = higher): up / down / left / right on that side of the cell,\n"
+                 "stay in the middle; red box = goal")
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def reward_label(summary: dict) -> str:
+    """The reward's name in reports, with what the learned reward reads when that is not the agent's
+    observation (``reward.coords``, e.g. ``drs[patch]``) and ``dqn.reward_scale`` when it is not 1."""
+    name = summary["reward"]
+    if name == "drs":
+        tags = [summary["reward_coords"]] if summary.get("reward_coords") else []
+        if summary.get("reward_input") == "next_state":
+            tags.append("s'")
+        name = f"drs[{', '.join(tags)}]" if tags else name
+        if summary.get("phase") == "reuse" and summary.get("reward_alpha") == 0:
+            name = f"{name} constant part (alpha=0)"
+    scale = float(summary.get("reward_scale", 1.0))
+    return name if scale == 1.0 else f"{name} x{scale:g}"
+
+
+def report(root, out: str | os.PathLike) -> dict:
+    """Gather ``summary.json`` / ``train.csv`` of every run under ``root`` (a folder, or a list of
+    folders) into ``out``: ``curves.csv`` (every eval row of every run), ``curves.png`` (mean and
+    std over seeds of the eval success rate against env steps) and ``table.md`` (final success
+    rates per seed). Runs are grouped by phase and reward (with its scale, :func:`reward_label`)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    roots = [Path(r) for r in (root if isinstance(root, (list, tuple, ListConfig)) else [root])]
+    out = Path(out)
+    runs = []
+    for s in sorted(p for r in roots for p in r.rglob("summary.json")):
+        summ = json.loads(s.read_text())
+        if "reward_scale" not in summ and (s.parent / "config.yaml").exists():  # runs written before the fields existed
+            c = OmegaConf.load(s.parent / "config.yaml")
+            summ["reward_scale"] = float(c.dqn.get("reward_scale", 1.0))
+            summ["reward_coords"] = c.reward.get("coords")
+        with open(s.parent / "train.csv") as f:
+            rows = list(csv.DictReader(f))
+        runs.append((summ, rows, s.parent))
+    if not runs:
+        raise MazeConfigError(f"no runs (summary.json) under {', '.join(map(str, roots))}")
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / "curves.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["phase", "map", "reward", "seed", "frames", "eval_success", "eval_length", "train_success"])
+        for summ, rows, _ in runs:
+            for r in rows:
+                w.writerow([summ["phase"], summ["map"], reward_label(summ), summ["seed"], r["frames"], r["eval_success"], r["eval_length"], r["train_success"]])
+    groups: dict[tuple[str, str], list] = {}
+    for summ, rows, d in runs:
+        groups.setdefault((summ["phase"], summ["map"], reward_label(summ)), []).append((summ, rows, d))
+    many_maps = {ph: len({m for p, m, _ in groups if p == ph}) > 1 for ph, _, _ in groups}
+    panels = [("learn", "phase 1: DrS reward learning (train map)"), ("reuse", "phase 2: fresh DQN on the test map")]
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
+    table = ["| phase | map | reward | seeds | env steps | eval success at the end (per seed) | mean +- std | mean over the last 3 evals | wall time per run (s) |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for ax, (phase, title) in zip(axes, panels):
+        for (ph, map_name, rname), members in sorted(groups.items()):
+            if ph != phase:
+                continue
+            legend = f"{rname} on {map_name}" if many_maps[ph] else rname
+            frames = np.array([float(r["frames"]) for r in members[0][1]])
+            n = min(len(m[1]) for m in members)
+            curves = np.array([[float(r["eval_success"]) for r in m[1][:n]] for m in members])
+            mean, std = curves.mean(0), curves.std(0)
+            ax.plot(frames[:n], mean, label=f"{legend} ({len(members)} seeds)")
+            ax.fill_between(frames[:n], mean - std, mean + std, alpha=0.25)
+            finals = [m[0]["final_eval_success"] for m in members]
+            last3 = [m[0]["mean_eval_success_last3"] for m in members]
+            table.append(f"| {phase} | {members[0][0]['map']} | {rname} | {', '.join(str(m[0]['seed']) for m in members)} | "
+                         f"{members[0][0]['frames']} | {', '.join(f'{x:.2f}' for x in finals)} | {np.mean(finals):.2f} +- {np.std(finals):.2f} | "
+                         f"{np.mean(last3):.2f} | {np.mean([m[0]['wall_time_s'] for m in members]):.0f} |")
+        ax.set_title(title if not many_maps.get(phase) else title.split(" on the ")[0] + " (map in the legend)")
+        ax.set_xlabel("env steps")
+        ax.set_ylabel("greedy eval success rate")
+        ax.set_ylim(-0.05, 1.05)
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper left")
+    fig.tight_layout()
+    fig.savefig(out / "curves.png", dpi=110)
+    plt.close(fig)
+    diag = ["", "| learned reward (seed) | map | argmax_a R(s,a) is a shortest-path action | greedy on R reaches the goal |", "|---|---|---|---|"]
+    for summ, _, _ in runs:
+        if summ["phase"] == "learn" and "reward_diagnostics" in summ:
+            for m, v in summ["reward_diagnostics"].items():
+                diag.append(f"| {reward_label(summ)} {summ['seed']} | {m} | {v['optimal_action_rate']:.2f} | {v['greedy_success']:.2f} |")
+    (out / "table.md").write_text("\n".join(table + diag) + "\n")
+    return {"runs": len(runs), "out": str(out)}
