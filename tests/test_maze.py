@@ -42,7 +42,7 @@ from drs_torchrl.trainers.maze import (
     train,
     validate,
 )
-from drs_torchrl.transforms import DrSReward
+from drs_torchrl.transforms import DrSReward, load_reward
 
 ROOT = Path(__file__).resolve().parents[1]
 UP, DOWN, LEFT, RIGHT, STAY = range(5)
@@ -214,8 +214,12 @@ def test_config_errors_name_the_fix():
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base=None):
         with pytest.raises(MazeConfigError, match="reward.checkpoint"):
             validate(compose("maze", overrides=["phase=reuse", "reward.name=drs"]))
-        with pytest.raises(MazeConfigError, match="phase=learn learns the DrS reward"):
+        with pytest.raises(MazeConfigError, match=r"phase=learn learns one of .*run with phase=reuse"):
             validate(compose("maze", overrides=["phase=learn", "reward.name=sparse"]))
+        with pytest.raises(MazeConfigError, match="demos > 0"):
+            validate(compose("maze", overrides=["phase=learn", "reward.name=gail", "demos=0"]))
+        with pytest.raises(MazeConfigError, match="reward.name=gail"):  # gail_stages reuses a GAIL checkpoint
+            validate(compose("maze", overrides=["phase=reuse", "reward.name=gail_stages"]))
         with pytest.raises(MazeConfigError, match="dqn.reward_scale must be > 0"):
             validate(compose("maze", overrides=["dqn.reward_scale=0"]))
         with pytest.raises(MazeConfigError, match="multiple of num_envs"):
@@ -451,3 +455,39 @@ def test_control_options_next_state_demos_only_constant_part_and_moved_gate_maps
             train(compose("maze", overrides=["phase=learn", "reward.positives=demos", "demos=0", *TINY]), tmp_path / "bad")
     grid = make_grid("test_shift3")
     assert [(~grid[row]).nonzero().reshape(-1).tolist() for row in WALL_ROWS] == [[6], [10]]
+
+
+@pytest.mark.parametrize("name", ["vice_raq", "oril", "gail"])
+def test_learned_baselines_run_on_the_maze_core_and_are_reused(name, tmp_path):
+    """VICE-RAQ, ORIL and GAIL on the maze through the shared learners: phase 1 writes a classifier
+    checkpoint of that method, phase 2 reuses it (GAIL also as gail_stages), and a checkpoint of
+    another method is refused with the fix named."""
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base=None):
+        s = train(compose("maze", overrides=["phase=learn", f"reward.name={name}", "demos=5", "reward.classifier.offline_updates=50",
+                                             "reward.classifier.random_episodes=3", "reward.classifier.batch_size=32", *TINY]),
+                  tmp_path / "learn")
+        reward = load_reward(tmp_path / "learn" / "reward.pt")
+        assert reward.method == name and reward.use_action == (name == "gail") and s["disc_updates"] > 0
+        assert bool(reward.classifier.trained)
+        lo, hi = reward.reward_bounds()
+        rows = list(csv.DictReader((tmp_path / "learn" / "train.csv").read_text().splitlines()))
+        means = [float(r["reward_mean"]) for r in rows if r["reward_mean"] not in ("", "nan")]
+        assert means and all(lo - 1e-6 <= m <= hi + 1e-6 for m in means) and hi <= 0.0  # every step costs
+        assert (tmp_path / "learn" / "reward_map.png").is_file() and "reward_diagnostics" in s
+        reuse_as = ["gail", "gail_stages"] if name == "gail" else [name]
+        for as_name in reuse_as:
+            r2 = train(compose("maze", overrides=["phase=reuse", f"reward.name={as_name}", f"reward.checkpoint={tmp_path / 'learn' / 'reward.pt'}",
+                                                  "dqn.reward_scale=0.1", *TINY]), tmp_path / f"reuse-{as_name}")
+            assert r2["map"] == "test" and r2["reward"] == as_name
+        other = "vice_raq" if name != "vice_raq" else "oril"
+        with pytest.raises(MazeConfigError, match="must match"):
+            train(compose("maze", overrides=["phase=reuse", f"reward.name={other}", f"reward.checkpoint={tmp_path / 'learn' / 'reward.pt'}",
+                                             *TINY]), tmp_path / "bad")
+    if name == "gail":  # the stage term: a success step earns w_s * 0, every other step w_s * (0 - 1) more than D alone
+        frozen = load_reward(tmp_path / "learn" / "reward.pt")
+        td = TensorDict({"observation": torch.zeros(2, OBS_DIMS["onehot"]), "action": onehot([0, 1]).float(),
+                         "next": {"observation": torch.zeros(2, OBS_DIMS["onehot"]), "stage": torch.tensor([[0], [1]])}}, batch_size=[2])
+        plain = frozen.reward(td)
+        frozen.stage_weight = 1.0
+        staged = frozen.reward(td)
+        assert torch.allclose(staged - plain, torch.tensor([[-1.0], [0.0]]))

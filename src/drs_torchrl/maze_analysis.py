@@ -58,8 +58,9 @@ def all_state_actions(map_name: str, goal: tuple[int, int], coords: str = "oneho
 def dense_reward_table(reward: DrSReward, map_name: str, goal: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
     """``R(s, a)`` of every free cell and action at stage 0 (the learned term), ``(n, 5)``."""
     cells, feats = all_state_actions(map_name, goal, reward_coords(reward), reads_next_state(reward))
+    net = reward.discriminators if isinstance(reward, DrSReward) else reward.classifier  # DrS, or a baseline's classifier
     with torch.no_grad():
-        logits = reward.discriminators(feats)
+        logits = net(feats)
         r = reward.combine(logits, torch.zeros(*logits.shape[:-1], 1, dtype=torch.long)).squeeze(-1)
     return cells, r
 

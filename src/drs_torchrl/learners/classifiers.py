@@ -93,9 +93,14 @@ class SuccessClassifierLearner(_TwoSetClassifier):
 
     name = "vice_raq"
 
-    def __init__(self, reward: ClassifierReward, *, success_key: str = "success", **kw):
+    def __init__(self, reward: ClassifierReward, *, success_key: str = "success",
+                 success_states: TensorDictBase | None = None, **kw):
+        """``success_states``: optional success states to start the positives with (e.g. the final
+        states of demonstrations, given to every learned reward alike)."""
         super().__init__(reward, **kw)
         self.success_key = success_key
+        if success_states is not None and success_states.numel():
+            self.positives.extend(self._states(success_states))
 
     def observe(self, batch, episodes):
         nxt = batch.get("next").reshape(-1)

@@ -67,7 +67,7 @@ from torchrl.objectives import DQNLoss, ValueEstimators
 
 from drs_torchrl.data import TrajectoryAssembler
 from drs_torchrl.envs.maze import ACTIONS, GATES, MOVES, OBS_DIMS, ThreeRoomMaze, convert_observation, observation
-from drs_torchrl.learners import DrSLearner
+from drs_torchrl.learners import DemoDiscriminatorLearner, DrSLearner, OfflineClassifierLearner, SuccessClassifierLearner
 from drs_torchrl.maze_analysis import (  # noqa: F401 (re-exported: the maze's analysis and report)
     MazeConfigError,
     all_state_actions,
@@ -80,9 +80,13 @@ from drs_torchrl.maze_analysis import (  # noqa: F401 (re-exported: the maze's a
     reward_label,
 )
 from drs_torchrl.run_logger import RunLogger
-from drs_torchrl.transforms import DrSReward, StageIndicator
+from drs_torchrl.transforms import ClassifierReward, DrSReward, StageIndicator, load_reward
 
-REWARDS = ("drs", "sparse", "semi_sparse", "dense")
+# the paper's learned baselines (Sec. 5.2, Appendix F.2) on the same core: classifier -> (output, offset),
+# as in conf/reward/*.yaml of the SAC families (every step costs: log D <= 0, D - 1 <= 0)
+CLASSIFIERS = {"vice_raq": ("log_sigmoid", 0.0), "oril": ("sigmoid", -1.0), "gail": ("log_sigmoid", 0.0)}
+LEARNED = ("drs", *CLASSIFIERS)  # what phase=learn can learn
+REWARDS = ("drs", "sparse", "semi_sparse", "dense", *CLASSIFIERS, "gail_stages")
 REWARD_INPUTS = ("state_action", "next_state")  # R(s, a) as the appendix's tabular analysis, or R(s') as Sec. 4.3
 FAMILY = "three_room_maze"
 RB_KEYS = ["observation", "action", ("next", "observation"), ("next", "reward"), ("next", "done"),
@@ -139,6 +143,9 @@ class StateActionReward(Transform):
         self.on_next_state = reads_next_state(reward)
 
     def _reward(self, root: TensorDictBase, nxt: TensorDictBase) -> torch.Tensor:
+        if isinstance(self.drs, ClassifierReward):  # a baseline's classifier reads (s, a) or s' itself
+            r = self.drs.reward_of(root, nxt, root.get(self.drs.action_key, None))
+            return r * self.scale if self.scale != 1.0 else r
         src = nxt if self.on_next_state else root
         sa = TensorDict({k: src.get(k) for k in self.drs.reward_in_keys}, batch_size=root.batch_size)
         if self.obs_coords is not None and self.obs_coords != self.reward_coords:
@@ -241,9 +248,16 @@ def validate(cfg: DictConfig) -> None:
     checks = [
         (cfg.phase in ("learn", "reuse", "report"), f"phase must be learn, reuse or report, got {cfg.phase!r}"),
         (cfg.reward.name in REWARDS, f"reward.name must be one of {REWARDS}, got {cfg.reward.name!r}"),
-        (cfg.phase != "learn" or cfg.reward.name == "drs", "phase=learn learns the DrS reward: use reward.name=drs (baselines run with phase=reuse)"),
+        (cfg.phase != "learn" or cfg.reward.name in LEARNED,
+         f"phase=learn learns one of {LEARNED} (static baselines, and gail_stages, run with phase=reuse)"),
         (cfg.phase != "learn" or not cfg.reward.checkpoint, "reward.checkpoint is for phase=reuse"),
-        (cfg.phase != "reuse" or cfg.reward.name != "drs" or bool(cfg.reward.checkpoint), "phase=reuse with reward.name=drs needs reward.checkpoint=PATH (a reward.pt written by phase=learn)"),
+        (cfg.phase != "reuse" or cfg.reward.name not in (*LEARNED, "gail_stages") or bool(cfg.reward.checkpoint),
+         f"phase=reuse with reward.name={cfg.reward.name} needs reward.checkpoint=PATH (a reward.pt written by phase=learn"
+         f"{' reward.name=gail' if cfg.reward.name == 'gail_stages' else ''})"),
+        (cfg.reward.name not in (*CLASSIFIERS, "gail_stages") or cfg.reward.get("coords") in (None, cfg.coords),
+         "the classifier baselines read the agent's own observation: leave reward.coords=null"),
+        (cfg.phase != "learn" or cfg.reward.name not in ("oril", "gail") or cfg.demos > 0,
+         f"reward.name={cfg.reward.name} learns from demonstrations: set demos > 0"),
         (cfg.map is None or cfg.map in GATES, f"map must be null or one of {sorted(GATES)}, got {cfg.map!r}"),
         (cfg.total_frames > 0 and cfg.num_envs > 0 and cfg.max_steps > 0, "total_frames, num_envs and max_steps must be > 0"),
         (cfg.dqn.frames_per_batch % cfg.num_envs == 0, f"dqn.frames_per_batch ({cfg.dqn.frames_per_batch}) must be a multiple of num_envs ({cfg.num_envs})"),
@@ -277,6 +291,8 @@ def make_reward(cfg: DictConfig, map_name: str, learn: bool) -> tuple[DrSLearner
     the same reward-learning core as the SAC families), frozen from a checkpoint (phase 2), or none
     (a baseline written by the env)."""
     r = cfg.reward
+    if r.name in (*CLASSIFIERS, "gail_stages"):
+        return make_classifier_reward(cfg, map_name, learn)
     if r.name != "drs":
         return None, None
     if not learn:
@@ -304,6 +320,43 @@ def make_reward(cfg: DictConfig, map_name: str, learn: bool) -> tuple[DrSLearner
                          updates_per_rl_update=r.disc.updates_per_dqn_update, early_stop_threshold=r.disc.early_stop_threshold,
                          window=r.disc.window, demos=demos, file_successes=r.get("positives", "all") == "all")
     return learner, drs
+
+
+def make_classifier_reward(cfg: DictConfig, map_name: str, learn: bool):
+    """A baseline's :class:`~drs_torchrl.transforms.ClassifierReward` and its learner from
+    :mod:`drs_torchrl.learners` (phase 1), or the frozen classifier (phase 2; ``gail_stages`` adds
+    the stage term ``w_s * (k - 1)`` to a GAIL checkpoint, Appendix F.2)."""
+    r, c = cfg.reward, cfg.reward.classifier
+    if not learn:
+        rew = load_reward(r.checkpoint)
+        want = "gail" if r.name == "gail_stages" else r.name
+        if not isinstance(rew, ClassifierReward) or rew.metadata.get("family") != FAMILY or rew.method != want:
+            raise MazeConfigError(f"{r.checkpoint} is not a maze {want} reward (family {rew.metadata.get('family')!r}, "
+                                  f"method {getattr(rew, 'method', 'drs')!r}): reward.name must match the phase-1 run's")
+        if r.name == "gail_stages":
+            rew.classifier_weight, rew.stage_weight = float(c.classifier_weight), float(c.stage_weight)
+        return None, rew.requires_grad_(False)
+    use_action = (r.name == "gail") if c.use_action is None else bool(c.use_action)
+    output, offset = CLASSIFIERS[r.name]
+    rew = ClassifierReward(["observation"], {"observation": OBS_DIMS[cfg.coords]}, 1, use_action=use_action,
+                           action_dim=len(ACTIONS) if use_action else None, output=output, offset=offset, hidden=list(c.hidden),
+                           activation=c.activation, method=r.name,
+                           metadata={"family": FAMILY, "map": map_name, "reward_on": "state_action" if use_action else "next_state",
+                                     "coords": cfg.coords, "seed": int(cfg.seed)})
+    common = dict(lr=float(c.lr), batch_size=int(c.batch_size), updates_per_rl_update=int(r.disc.updates_per_dqn_update))
+    s_eps = demo_episodes(map_name, int(cfg.demos), int(cfg.seed), cfg.coords)  # observations of s ...
+    n_eps = demo_episodes(map_name, int(cfg.demos), int(cfg.seed), cfg.coords, next_state=True)  # ... and of s'
+    if r.name == "vice_raq":  # the oracle's success label for every visited state; the demos' goal states seed the positives
+        goals = torch.stack([n.get(("next", "observation"))[-1] for n in n_eps]) if n_eps else torch.zeros(0, OBS_DIMS[cfg.coords])
+        return SuccessClassifierLearner(rew, success_key="success", capacity=int(c.buffer_size),
+                                        success_states=TensorDict({"observation": goals}, batch_size=[len(goals)]), **common), rew
+    demos = [TensorDict({"observation": n.get(("next", "observation")), "action": s.get(("next", "action")),
+                         "state": TensorDict({"observation": s.get(("next", "observation"))}, batch_size=s.shape)}, batch_size=s.shape)
+             for s, n in zip(s_eps, n_eps)]
+    if r.name == "oril":  # demonstration states vs random-walk states, offline (prepare())
+        return OfflineClassifierLearner(rew, demos=[d.select("observation") for d in demos], capacity=int(c.buffer_size),
+                                        random_episodes=int(c.random_episodes), offline_updates=int(c.offline_updates), **common), rew
+    return DemoDiscriminatorLearner(rew, demos=demos, **common), rew
 
 
 def make_replay_buffer(cfg: DictConfig, drs: DrSReward | None) -> ReplayBuffer:
@@ -360,6 +413,12 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
     log = _MazeLog(cfg, run_dir, actor, eval_env, explore, learner)
     assembler, frames, owed = TrajectoryAssembler(), 0, 0.0
     rc = reward_coords(drs) if drs is not None else None
+    agent_rb = None
+    if learner is not None:
+        learner.prepare(env)  # ORIL: random-walk episodes and the offline fit, before the first step
+        if isinstance(learner, DemoDiscriminatorLearner):  # GAIL draws the agent's (s, a, s') from a flat buffer
+            agent_rb = ReplayBuffer(storage=LazyTensorStorage(int(cfg.reward.classifier.buffer_size)))
+            learner.attach(agent_rb)
     try:
         for batch in collector:
             log.maybe_row(frames)
@@ -367,9 +426,13 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
             rb.extend(mark_terminal_obs(batch.select(*RB_KEYS)) if n_steps > 1 else batch.reshape(-1).select(*RB_KEYS))
             episodes = assembler.add(batch)
             log.episodes(episodes)
-            if learner is not None:  # Algorithm 1: every finished episode into the stage buffers
+            if agent_rb is not None:
+                agent_rb.extend(batch.reshape(-1).select("observation", "action", ("next", "observation")))
+            if isinstance(learner, DrSLearner):  # Algorithm 1: every finished episode into the stage buffers
                 learner.observe(batch, [sa_trajectory(ep, obs_coords=cfg.coords, reward_coords=rc, next_state=reads_next_state(drs))
                                         for ep in episodes])
+            elif learner is not None:  # VICE-RAQ labels every visited state; ORIL and GAIL need nothing here
+                learner.observe(batch, episodes)
             explore.step(batch.numel())
             owed += float(d.utd) * batch.numel() if frames >= int(d.learning_starts) else 0.0
             while owed >= 1:
@@ -410,8 +473,9 @@ class _MazeLog:
         self.updates += 1
         r1 = sample.get(("next", "original_reward"), None)  # n-step windows keep the one-step reward here
         self.window.add(dqn_loss=float(dqn_out["loss"].detach()), reward_mean=float((r1 if r1 is not None else sample.get(("next", "reward"))).mean()))
-        if disc_out is not None:
-            self.window.add(disc_loss=float(disc_out["loss_0"]), disc_accuracy=float(disc_out["accuracy_0"]))
+        if disc_out is not None:  # DrS: per-stage keys (one stage here); a classifier: loss and accuracy
+            self.window.add(disc_loss=float(disc_out.get("loss_0", disc_out.get("loss"))),
+                            disc_accuracy=float(disc_out.get("accuracy_0", disc_out.get("accuracy"))))
 
     def maybe_row(self, frames: int, force: bool = False) -> None:
         if frames < self.next_eval and not force:
@@ -422,10 +486,14 @@ class _MazeLog:
                "train_success": float(np.mean([s for s, _ in self.recent])) if self.recent else float("nan"),
                "train_length": float(np.mean([n for _, n in self.recent])) if self.recent else float("nan"),
                "dqn_loss": float("nan"), "reward_mean": float("nan"), **self.window.flush()}
-        if self.learner is not None:
+        if isinstance(self.learner, DrSLearner):
             counts = self.learner.stage_buffers.stage_counts()
-            row.update(success_buffer=int(counts[1]), failure_buffer=int(counts[0]), disc_updates=self.learner.updates,
+            row.update(success_buffer=int(counts[1]), failure_buffer=int(counts[0]),
                        disc_active=float(self.learner.loss.training_mask()[0]))
+        elif self.learner is not None:
+            row.update(self.learner.log_row())
+        if self.learner is not None:
+            row["disc_updates"] = self.learner.updates
             row.setdefault("disc_loss", float("nan"))
             row.setdefault("disc_accuracy", float("nan"))
         self.logger.log("train", frames, row)
@@ -437,13 +505,13 @@ class _MazeLog:
     def close(self) -> None:
         self.logger.close()
 
-    def finish(self, frames: int, map_name: str, drs: DrSReward | None, learner: DrSLearner | None) -> dict:
+    def finish(self, frames: int, map_name: str, drs, learner) -> dict:
         cfg, wall = self.cfg, time.perf_counter() - self.t0
         summary = {
             "phase": cfg.phase, "map": map_name, "reward": cfg.reward.name, "reward_scale": float(cfg.dqn.get("reward_scale", 1.0)),
             "seed": int(cfg.seed),
             "reward_input": ("next_state" if reads_next_state(drs) else "state_action") if drs is not None else None,
-            "reward_alpha": drs.alpha if drs is not None else None,
+            "reward_alpha": getattr(drs, "alpha", None),
             "reward_coords": reward_coords(drs) if (drs is not None and reward_coords(drs) != cfg.coords) else None,
             "frames": frames, "updates": self.updates, "wall_time_s": round(wall, 1),
             "cpu_time_s": round(time.process_time() - self.cpu0, 1), "env_steps_per_s": round(frames / wall, 1),
@@ -454,7 +522,10 @@ class _MazeLog:
         if learner is not None:
             summary["reward_checkpoint"] = str(drs.save(self.run_dir / "reward.pt"))
             summary["disc_updates"] = learner.updates
-            summary["stage_buffer_counts"] = learner.stage_buffers.stage_counts().tolist()
+            if isinstance(learner, DrSLearner):
+                summary["stage_buffer_counts"] = learner.stage_buffers.stage_counts().tolist()
+            else:
+                summary.update(learner.summary())
         if drs is not None:
             maps = ("train", map_name if map_name != "train" else "test")
             summary["reward_map"] = str(plot_reward_map(drs, self.run_dir / "reward_map.png", tuple(cfg.plot_goal), maps))
