@@ -222,7 +222,7 @@ class ManiSkillEnv(EnvBase):
         return TensorDict(out, batch_size=self.batch_size, device=self.device)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        action = tensordict["action"].to(self._sim_device)
+        action = tensordict["action"].detach().to(self._sim_device)  # a rollout outside no_grad hands over a graph
         if not self.gpu:
             action = action.unsqueeze(0)
         obs, reward, terminated, truncated, info = self._gym_env.step(action)

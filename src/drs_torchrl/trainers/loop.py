@@ -22,12 +22,11 @@ from typing import Any
 
 import numpy as np
 import torch
-from hydra.utils import get_class, instantiate
+from hydra.utils import get_class
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDict
 from torchrl.collectors import AsyncCollector, MultiCollector
 from torchrl.data import LazyTensorStorage, ReplayBuffer
-from torchrl.envs.transforms import DeviceCastTransform
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm.auto import tqdm
 
@@ -35,12 +34,21 @@ from drs_torchrl.data import TrajectoryAssembler
 from drs_torchrl.data.persistence import SnapshotError, dump_buffer, load_buffer
 from drs_torchrl.demos import check_demos, load_demos
 from drs_torchrl.envs.factory import make_family_env
-from drs_torchrl.models import POLICY_FORMAT, POLICY_INTERMEDIATE_KEYS, make_sac_modules, read_policy_checkpoint
+from drs_torchrl.models import POLICY_FORMAT, POLICY_INTERMEDIATE_KEYS, read_policy_checkpoint
 from drs_torchrl.precision import autocast, describe_precision, grad_scaler, resolve_precision
-from drs_torchrl.rewards import LEARNED, dense_offset, new_reward_learner, reward_setup
+from drs_torchrl.rewards import LEARNED, reward_setup
 from drs_torchrl.transforms.classifier_reward import ClassifierReward
 from drs_torchrl.transforms.stages import StageIndicator
 from drs_torchrl.run_logger import RunLogger
+from drs_torchrl.trainers.factories import (
+    make_collector,
+    make_envs,
+    make_loss_module,
+    make_optimizers,
+    make_replay_buffer,
+    make_reward_learner,
+    make_sac_agent,
+)
 from drs_torchrl.tasks import family_from_config
 
 
@@ -164,86 +172,35 @@ class Trainer:
         self.family = family = family_from_config(cfg.env)
         self.num_stages = family.num_stages
         self.reward = reward = reward_setup(cfg.reward, phase)
-        env_kwargs = dict(
-            variant_overrides=OmegaConf.to_container(cfg.env.variant_overrides) if cfg.env.variant_overrides else None,
-            reward_mode=reward.env_reward_mode,
-            semi_sparse_reward=reward.semi_sparse,
-            semi_sparse_offset=reward.semi_sparse_offset,
-            reward_offset=dense_offset(reward, family),
-            sim_backend=cfg.env.sim_backend,
-            num_envs=cfg.env.num_envs,
-            cpu_batching=cfg.env.get("cpu_batching", "serial"),
-            control_mode=cfg.env.control_mode,
-            max_episode_steps=cfg.env.max_episode_steps,
-        )
-        self._env_kwargs = env_kwargs
-        self.env = make_family_env(family, cfg.env.split, seed=int(cfg.seed), **env_kwargs)
-        # evaluation runs one episode at a time in a single env
-        self.eval_env = make_family_env(
-            family, cfg.eval.get("split") or cfg.env.split, seed=int(cfg.seed) + 10_000, **{**env_kwargs, "num_envs": 1}
-        )
-        for env in (self.env, self.eval_env):
-            if env.device != self.device:  # e.g. CPU simulation feeding a CUDA learner: data moves at the env edge
-                env.append_transform(DeviceCastTransform(self.device, orig_device=env.device))
-        if reward.frozen is not None:
-            reward.frozen.check_compatible(self.env.observation_spec, num_stages=self.num_stages, family=family.name,
-                                           action_spec=self.env.action_spec)
-            reward.frozen.to(self.device)
-            self.env.append_transform(reward.frozen)
-            self.eval_env.append_transform(reward.frozen.clone())
+        self.env, self.eval_env, self._env_kwargs = make_envs(cfg, family, reward, self.device)
         self.num_demos = 0
         demos = None
         self.learner = None  # the reward-learning core (drs_torchrl.learners), phase 1 of a learned reward
         if phase == "learn" and reward.name in LEARNED:
-            split_args = family.env_args(cfg.env.split, env_kwargs["variant_overrides"])  # all variants of a split
-            meta = {
-                "family": family.name,
-                "env_id": split_args["env_id"],
-                "variant": cfg.env.split,
-                "variant_kwargs": split_args["env_kwargs"],
-                "stage_keys": list(family.stage_keys),
-                "seed": int(cfg.seed),
-            }
             # a resumed DrS run has its demonstrations in its stage-buffer snapshot (the file is read again only
             # for demos.sac_share); the classifiers keep theirs apart from their data and read the file again
             share = float((cfg.get("demos") or {}).get("sac_share") or 0.0)
             demos = self._demonstrations(cfg, family) if (not resume or reward.name != "drs" or share > 0) else None
-            self.learner = new_reward_learner(
-                cfg.reward, family, self.env, meta, device=self.device,
-                autocast=functools.partial(autocast, self.precision, self.device),
-                # not a bound method: a learner -> trainer reference cycle would keep the collector (and
-                # TorchRL's weight-sync scheme, whose __del__ deadlocks at interpreter exit) alive until then
-                step_fn=functools.partial(backward_and_step, self._grad_scaler),
-                demos=None if (resume and reward.name == "drs") else demos,
-            )
+            # step_fn is not a bound method: a learner -> trainer reference cycle would keep the collector (and
+            # TorchRL's weight-sync scheme, whose __del__ deadlocks at interpreter exit) alive until then
+            self.learner = make_reward_learner(cfg, family, self.env, self.device, self.precision,
+                                               functools.partial(backward_and_step, self._grad_scaler),
+                                               demos=None if (resume and reward.name == "drs") else demos)
             reward.learned = self.learner.reward
         self.learned = reward.learned
 
-        a = cfg.algo
-        self.actor, self.qvalue = make_sac_modules(
-            self.env.observation_spec, self.env.action_spec, list(a.policy_in_keys), list(a.hidden), device=self.device
-        )
-        loss_kwargs = {}
-        if self.precision != "fp32" and "deactivate_vmap" not in a.loss:
-            # torch.autocast does not reach inside torch.vmap (the twin critics' batched pass would stay
-            # fp32): in low precision the critics are evaluated one after the other
-            loss_kwargs["deactivate_vmap"] = True
-        self.loss = instantiate(a.loss)(actor_network=self.actor, qvalue_network=self.qvalue, action_spec=self.env.action_spec,
-                                        **loss_kwargs)
-        self.loss.to(self.device)
-        self.loss.make_value_estimator(gamma=float(a.gamma))
-        # algo.compile: the SAC loss's forward (and, through AOTAutograd, its backward) compiled with
-        # torch.compile; the module, its parameters and checkpoints stay those of self.loss
+        self.actor, self.qvalue = make_sac_agent(cfg, self.env, self.device)
+        self.loss, self.target_updater = make_loss_module(cfg, self.actor, self.qvalue, self.env.action_spec, self.device, self.precision)
         if cfg.get("init_from") and not resume:  # Sec. 5.4.2: fine-tune a phase-1 agent instead of a fresh one
             self._init_from(cfg.init_from)
-        self._loss_fn = torch.compile(self.loss, **(a.get("compile_kwargs") or {})) if a.get("compile") else self.loss
-        self.target_updater = instantiate(a.target_update)(self.loss)
-        self.optim_actor = instantiate(a.optim)(list(self.loss.actor_network_params.values(True, True)))
-        self.optim_critic = instantiate(a.optim)(list(self.loss.qvalue_network_params.values(True, True)))
-        self.optim_alpha = instantiate(a.optim)([self.loss.log_alpha])
+        # algo.compile: the SAC loss's forward (and, through AOTAutograd, its backward) compiled with
+        # torch.compile; the module, its parameters and checkpoints stay those of self.loss
+        self._loss_fn = torch.compile(self.loss, **(cfg.algo.get("compile_kwargs") or {})) if cfg.algo.get("compile") else self.loss
+        self.optimizers = make_optimizers(cfg, self.loss)
+        self.optim_actor, self.optim_critic, self.optim_alpha = (self.optimizers[k] for k in ("actor", "critic", "alpha"))
         # the learned reward recomputes ("next", "reward") from the current discriminators at sampling
         # (its storage lives on the learner's device, where the reward transform runs)
-        self.replay = instantiate(a.replay_buffer, storage={"device": str(self.device)})(transform=self.learned)
+        self.replay = make_replay_buffer(cfg, self.learned, self.device)
         # the actor's intermediate outputs and the collector's bookkeeping are not stored: SACLoss
         # recomputes the former, nothing reads the latter, and every extra key costs at each sample
         self._replay_exclude = (*POLICY_INTERMEDIATE_KEYS, "collector")
@@ -426,7 +383,7 @@ class Trainer:
         return paths
 
     def _optimizers(self) -> dict[str, torch.optim.Optimizer]:
-        return {"actor": self.optim_actor, "critic": self.optim_critic, "alpha": self.optim_alpha}
+        return self.optimizers
 
     def save_training_state(self) -> Path:
         """Everything needed to continue the run, written atomically to ``checkpoints/state``.
@@ -559,117 +516,56 @@ class Trainer:
     def make_collector(self, frames: int):
         """The configured TorchRL collector for the next ``frames`` env steps, acting with
         ``self.actor`` (random actions until ``algo.learning_starts``)."""
-        a = self.cfg.algo
-        return instantiate(a.collector)(
-            self._collector_env(),
-            self.actor,
-            total_frames=frames,
-            init_random_frames=max(0, int(a.learning_starts) - self.frames),
-            device=self.device,
-        )
+        return make_collector(self.cfg, self._collector_env(), self.actor, frames, self.frames, self.device)
 
     def run(self) -> dict[str, Any]:
+        """Algorithm 1 from where the run stands to ``total_frames`` env steps; returns the summary."""
         cfg = self.cfg
         total = int(cfg.total_frames)
-        log_every, eval_every = int(cfg.logger.interval), int(cfg.eval.interval)
-        ckpt_every = int(cfg.checkpoint_interval)
-        next_log = (self.frames // log_every + 1) * log_every
-        next_eval = (self.frames // eval_every + 1) * eval_every
-        next_ckpt = (self.frames // ckpt_every + 1) * ckpt_every
         summary: dict[str, Any] = {"phase": self.phase, "run_dir": str(self.run_dir), "resumed_from": self.resumed_from,
                                    "precision": self.precision, "init_from": cfg.get("init_from")}
         tqdm.write(f"drs-{self.phase}: {describe_precision(self.precision, self.device)}")
-        remaining = total - self.frames
         if self.learner is not None and self.frames == 0 and self.resumed_from is None:
             self.learner.prepare(self.env)  # e.g. ORIL's offline classifier, before the first env step
-        if remaining > 0:
-            self.collector = self.make_collector(remaining)
+        if total - self.frames > 0:
+            self.collector = self.make_collector(total - self.frames)
             if self.collects_in_background and not self.env.is_closed:
                 self.env.close()  # its specs were all the trainer needed; the worker has its own simulator
         bar = tqdm(total=total, initial=self.frames, desc=f"drs-{self.phase}", unit="step",
                    disable=not cfg.logger.progress_bar, dynamic_ncols=True)
-        t0, frames0 = time.perf_counter(), self.frames
-        it = iter(self.collector) if self.collector is not None else iter(())
         stop = _StopRequest()
         previous = stop.install()  # stays until run() returns: the final eval and saves stop cleanly too
         try:
-            return self._run_loop(stop, summary, total, log_every, eval_every, ckpt_every, next_log, next_eval, next_ckpt,
-                                  it, bar, t0, frames0)
+            return self._run_loop(stop, summary, bar)
         finally:
             stop.uninstall(previous)
 
-    def _run_loop(self, stop, summary, total, log_every, eval_every, ckpt_every, next_log, next_eval, next_ckpt,
-                  it, bar, t0, frames0) -> dict[str, Any]:
-        cfg, a = self.cfg, self.cfg.algo
-        sac_stats: list[TensorDict] = []
-        disc_stats: list[TensorDict] = []
-        rewards: list[torch.Tensor] = []
-        t_collect = t_update = 0.0
-        window_frames, window_updates, t_window = 0, 0, time.perf_counter()
-        interrupted = forced = False
-        background = self.collector is not None and self.collects_in_background
+    def _run_loop(self, stop, summary, bar) -> dict[str, Any]:
+        """The loop of Algorithm 1: collect, file episodes, update the reward learner and SAC at the
+        configured UTD, and log / evaluate / checkpoint on schedule, until the budget or a signal."""
+        cfg, win = self.cfg, _Window()
+        log_at, eval_at, ckpt_at = (_Every(int(i), self.frames) for i in (cfg.logger.interval, cfg.eval.interval, cfg.checkpoint_interval))
+        it = iter(self.collector) if self.collector is not None else iter(())
+        t0, frames0, interrupted, forced = time.perf_counter(), self.frames, False, False
         try:
-            while True:
-                tc = time.perf_counter()
-                try:
-                    batch = next(it)
-                except StopIteration:
-                    break
-                t_collect += time.perf_counter() - tc
-                self._check_finite("observations", batch.get(("next", "observation")))
-                n = batch.numel()
-                self.frames += n
-                window_frames += n
-                self.replay.extend(batch.exclude(*self._replay_exclude).reshape(-1))
-                episodes = self.assembler.add(batch)
-                if episodes:
-                    self.recent.extend(episode_summary(ep, self.episode_reward) for ep in episodes)
-                if self.learner is not None:  # DrS files the episodes by stage; VICE-RAQ labels every state
-                    self.learner.observe(batch, episodes)
-
-                tu = time.perf_counter()
-                if self.frames >= int(a.learning_starts) and len(self.replay) >= int(a.batch_size):
-                    self._owed_updates += n * float(a.utd)
-                    k = int(self._owed_updates)
-                    self._owed_updates -= k
-                    for _ in range(k):
-                        if self.learner is not None:
-                            d = self.learner.update()
-                            if d is not None:
-                                disc_stats.append(d)
-                        out, r = self._sac_step()
-                        sac_stats.append(out)
-                        rewards.append(r)
-                    window_updates += k
-                    if k and background:  # the worker collects the next batch with the updated actor
-                        self.collector.update_policy_weights_()
-                t_update += time.perf_counter() - tu
+            while (batch := win.timed("collect", next, it, None)) is not None:
+                n = self._store(batch)  # replay buffer, finished episodes, the reward learner's observe()
+                win.timed("update", self._update, n, win)
+                win.frames += n
                 bar.update(n)
-
-                if self.frames >= next_log:
-                    next_log = (self.frames // log_every + 1) * log_every
-                    now = time.perf_counter()
-                    row = self._train_row(sac_stats, disc_stats, rewards, window_frames, window_updates, now - t_window, t_collect, t_update)
+                if log_at.due(self.frames):
+                    row = self._train_row(win)
                     self.logger.log("train", self.frames, row)
                     bar.set_postfix(success=f"{row.get('success_rate', 0):.2f}", sps=f"{row['env_steps_per_s']:.0f}")
-                    sac_stats, disc_stats, rewards = [], [], []
-                    window_frames = window_updates = 0
-                    t_window, t_collect, t_update = now, 0.0, 0.0
-                if self.frames >= next_eval:
-                    next_eval = (self.frames // eval_every + 1) * eval_every
-                    ev = self.evaluate()
-                    self._last_eval_frames = self.frames
-                    if ev:
-                        self.logger.log("eval", self.frames, ev)
-                        summary["last_eval"] = ev
-                if self.frames >= next_ckpt:
-                    next_ckpt = (self.frames // ckpt_every + 1) * ckpt_every
+                    win = _Window()
+                if eval_at.due(self.frames):
+                    self._evaluate_and_log(summary)
+                if ckpt_at.due(self.frames):
                     self.save_checkpoints()
                     self.save_training_state()
                     self.logger.flush()
                 if stop.signum is not None:  # SIGINT/SIGTERM: stop here, between two rounds
-                    interrupted = True
-                    summary["signal"] = int(stop.signum)
+                    interrupted, summary["signal"] = True, int(stop.signum)
                     tqdm.write(f"signal {stop.signum} at {self.frames} env steps: saving the training state in "
                                f"{self.run_dir / 'checkpoints'}")
                     break
@@ -684,17 +580,55 @@ class Trainer:
             raise
         finally:
             bar.close()
+        return self._finish(summary, win, t0, frames0, interrupted, forced)
+
+    def _store(self, batch) -> int:
+        """A collected batch into the replay buffer; its finished episodes to the statistics and to
+        the reward learner (DrS files them by stage; VICE-RAQ labels every state)."""
+        self._check_finite("observations", batch.get(("next", "observation")))
+        n = batch.numel()
+        self.frames += n
+        self.replay.extend(batch.exclude(*self._replay_exclude).reshape(-1))
+        episodes = self.assembler.add(batch)
+        if episodes:
+            self.recent.extend(episode_summary(ep, self.episode_reward) for ep in episodes)
+        if self.learner is not None:
+            self.learner.observe(batch, episodes)
+        return n
+
+    def _update(self, n: int, win: "_Window") -> None:
+        """``algo.utd`` updates per collected env step, once learning has started: the reward
+        learner's step, then SAC's (the learned reward recomputed on its batch)."""
+        a = self.cfg.algo
+        if self.frames < int(a.learning_starts) or len(self.replay) < int(a.batch_size):
+            return
+        self._owed_updates += n * float(a.utd)
+        k = int(self._owed_updates)
+        self._owed_updates -= k
+        for _ in range(k):
+            if self.learner is not None and (d := self.learner.update()) is not None:
+                win.disc.append(d)
+            out, r = self._sac_step()
+            win.sac.append(out)
+            win.rewards.append(r)
+        win.updates += k
+        if k and self.collector is not None and self.collects_in_background:
+            self.collector.update_policy_weights_()  # the worker collects the next batch with the updated actor
+
+    def _evaluate_and_log(self, summary: dict) -> None:
+        ev = self.evaluate()
+        self._last_eval_frames = self.frames
+        if ev:
+            self.logger.log("eval", self.frames, ev)
+            summary["last_eval"] = ev
+
+    def _finish(self, summary: dict, win: "_Window", t0: float, frames0: int, interrupted: bool, forced: bool) -> dict[str, Any]:
+        """The last rows, a final evaluation (unless interrupted), the saves (unless forced) and ``summary.json``."""
         elapsed = time.perf_counter() - t0
-        if window_frames:
-            row = self._train_row(sac_stats, disc_stats, rewards, window_frames, window_updates,
-                                  time.perf_counter() - t_window, t_collect, t_update)
-            self.logger.log("train", self.frames, row)
+        if win.frames:
+            self.logger.log("train", self.frames, self._train_row(win))
         if not interrupted and self._last_eval_frames != self.frames:
-            ev = self.evaluate()
-            self._last_eval_frames = self.frames
-            if ev:
-                self.logger.log("eval", self.frames, ev)
-                summary["last_eval"] = ev
+            self._evaluate_and_log(summary)
         if not forced:
             summary["checkpoints"] = self.save_checkpoints()
             self.save_training_state()
@@ -728,10 +662,12 @@ class Trainer:
         """Backward pass and optimiser steps, through the fp16 gradient scaler when there is one."""
         backward_and_step(self._grad_scaler, loss, optimizers)
 
-    def _train_row(self, sac_stats, disc_stats, rewards, frames, updates, dt, t_collect, t_update) -> dict[str, float]:
+    def _train_row(self, win: "_Window") -> dict[str, float]:
+        dt, frames, updates = time.perf_counter() - win.t0, win.frames, win.updates
+        t_collect, t_update = win.seconds["collect"], win.seconds["update"]
         row: dict[str, float] = {
-            "frames": float(self.frames),
-            "updates": float(self.updates),
+            "frames": self.frames,
+            "updates": self.updates,
             "env_steps_per_s": frames / max(dt, 1e-9),
             "updates_per_s": updates / max(t_update, 1e-9) if updates else 0.0,
             "collect_steps_per_s": frames / max(t_collect, 1e-9),
@@ -742,16 +678,16 @@ class Trainer:
         }
         if self.recent:
             row.update(aggregate_episodes(list(self.recent), self.num_stages))
-        if sac_stats:
-            st = torch.stack([s.select("loss_actor", "loss_qvalue", "loss_alpha", "alpha", "entropy") for s in sac_stats])
+        if win.sac:
+            st = torch.stack([s.select("loss_actor", "loss_qvalue", "loss_alpha", "alpha", "entropy") for s in win.sac])
             for k in st.keys():
                 row[k] = float(st[k].float().mean())
-        if rewards:
-            r = torch.cat(rewards)
+        if win.rewards:
+            r = torch.cat(win.rewards)
             self._check_finite("rewards", r)
             row.update(reward_mean=float(r.mean()), reward_std=float(r.std()), reward_min=float(r.min()), reward_max=float(r.max()))
-        if disc_stats:
-            st = torch.stack(disc_stats)
+        if win.disc:
+            st = torch.stack(win.disc)
             for k in st.keys():
                 row[f"disc_{k}"] = float(st[k].float().mean())
         if self.learner is not None:
@@ -770,6 +706,40 @@ class Trainer:
         for env in (self.env, self.eval_env):
             if env is not None and not env.is_closed:
                 env.close()
+
+
+class _Window:
+    """What happened since the last train-log row: SAC and reward-learner statistics, sampled
+    rewards, env steps, updates, and the seconds spent waiting for data and updating."""
+
+    def __init__(self):
+        self.sac: list[TensorDict] = []
+        self.disc: list[TensorDict] = []
+        self.rewards: list[torch.Tensor] = []
+        self.frames = self.updates = 0
+        self.seconds = {"collect": 0.0, "update": 0.0}
+        self.t0 = time.perf_counter()
+
+    def timed(self, what: str, fn, *args):
+        t = time.perf_counter()
+        try:
+            return fn(*args)
+        finally:
+            self.seconds[what] += time.perf_counter() - t
+
+
+class _Every:
+    """Due every ``interval`` env steps, counted from 0 (a resumed run keeps the same schedule)."""
+
+    def __init__(self, interval: int, frames: int):
+        self.interval = interval
+        self.next = (frames // interval + 1) * interval
+
+    def due(self, frames: int) -> bool:
+        if frames < self.next:
+            return False
+        self.next = (frames // self.interval + 1) * self.interval
+        return True
 
 
 def backward_and_step(grad_scaler, loss: torch.Tensor, optimizers) -> None:

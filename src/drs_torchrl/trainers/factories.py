@@ -1,0 +1,118 @@
+"""The ``make_*`` factories of the SAC trainer, in the shape of TorchRL's ``sota-implementations/sac``.
+
+Each builds one TorchRL piece from the Hydra config and is usable on its own (from a notebook, or
+another TorchRL script): the task family's envs with their reward in the slot, SAC's actor and twin
+critics, TorchRL's ``SACLoss`` with its target updater and optimisers, the replay buffer whose
+sampling transform recomputes a learned reward, the reward-learning core, and the collector.
+:class:`~drs_torchrl.trainers.loop.Trainer` wires them into Algorithm 1.
+"""
+from __future__ import annotations
+
+import functools
+from typing import Any
+
+import torch
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+from torchrl.envs.transforms import DeviceCastTransform
+
+from drs_torchrl.envs.factory import make_family_env
+from drs_torchrl.models import make_sac_modules
+from drs_torchrl.precision import autocast
+from drs_torchrl.rewards import RewardSetup, dense_offset, new_reward_learner
+from drs_torchrl.tasks import TaskFamily
+
+__all__ = ["make_envs", "make_sac_agent", "make_loss_module", "make_optimizers", "make_replay_buffer",
+           "make_reward_learner", "make_collector"]
+
+
+def make_envs(cfg: DictConfig, family: TaskFamily, reward: RewardSetup, device: torch.device):
+    """The training env (``env.split``) and a one-env evaluation env (``eval.split``), each with the
+    family's stage labelling and the reward in its slot: the env's own reward (sparse, semi-sparse,
+    dense), or a frozen learned reward appended as a transform (phase 2). Returns ``(env, eval_env,
+    env_kwargs)``; ``env_kwargs`` rebuilds the same env elsewhere (a collector's worker process)."""
+    env_kwargs = dict(
+        variant_overrides=OmegaConf.to_container(cfg.env.variant_overrides) if cfg.env.variant_overrides else None,
+        reward_mode=reward.env_reward_mode,
+        semi_sparse_reward=reward.semi_sparse,
+        semi_sparse_offset=reward.semi_sparse_offset,
+        reward_offset=dense_offset(reward, family),
+        sim_backend=cfg.env.sim_backend,
+        num_envs=cfg.env.num_envs,
+        cpu_batching=cfg.env.get("cpu_batching", "serial"),
+        control_mode=cfg.env.control_mode,
+        max_episode_steps=cfg.env.max_episode_steps,
+    )
+    env = make_family_env(family, cfg.env.split, seed=int(cfg.seed), **env_kwargs)
+    eval_env = make_family_env(family, cfg.eval.get("split") or cfg.env.split, seed=int(cfg.seed) + 10_000,
+                               **{**env_kwargs, "num_envs": 1})  # evaluation: one episode at a time
+    for e in (env, eval_env):
+        if e.device != device:  # e.g. CPU simulation feeding a CUDA learner: data moves at the env edge
+            e.append_transform(DeviceCastTransform(device, orig_device=e.device))
+    if reward.frozen is not None:
+        reward.frozen.check_compatible(env.observation_spec, num_stages=family.num_stages, family=family.name,
+                                       action_spec=env.action_spec)
+        reward.frozen.to(device)
+        env.append_transform(reward.frozen)
+        eval_env.append_transform(reward.frozen.clone())
+    return env, eval_env, env_kwargs
+
+
+def make_sac_agent(cfg: DictConfig, env, device: torch.device):
+    """SAC's tanh-normal actor and a Q-network template (``algo.hidden``, reading ``algo.policy_in_keys``)."""
+    a = cfg.algo
+    return make_sac_modules(env.observation_spec, env.action_spec, list(a.policy_in_keys), list(a.hidden), device=device)
+
+
+def make_loss_module(cfg: DictConfig, actor, qvalue, action_spec, device: torch.device, precision: str = "fp32"):
+    """TorchRL's ``SACLoss`` as ``algo.loss`` configures it (twin critics, auto target entropy), its
+    TD(0) value estimator at ``algo.gamma``, and the ``algo.target_update`` updater."""
+    a = cfg.algo
+    kwargs = {}
+    if precision != "fp32" and "deactivate_vmap" not in a.loss:
+        # torch.autocast does not reach inside torch.vmap (the twin critics' batched pass would stay
+        # fp32): in low precision the critics are evaluated one after the other
+        kwargs["deactivate_vmap"] = True
+    loss = instantiate(a.loss)(actor_network=actor, qvalue_network=qvalue, action_spec=action_spec, **kwargs)
+    loss.to(device)
+    loss.make_value_estimator(gamma=float(a.gamma))
+    return loss, instantiate(a.target_update)(loss)
+
+
+def make_optimizers(cfg: DictConfig, loss) -> dict[str, torch.optim.Optimizer]:
+    """One ``algo.optim`` each for the actor, the critics and the entropy coefficient."""
+    opt = instantiate(cfg.algo.optim)
+    return {"actor": opt(list(loss.actor_network_params.values(True, True))),
+            "critic": opt(list(loss.qvalue_network_params.values(True, True))),
+            "alpha": opt([loss.log_alpha])}
+
+
+def make_replay_buffer(cfg: DictConfig, transform, device: torch.device):
+    """``algo.replay_buffer`` on ``device``; ``transform`` (a learned reward, or None) recomputes
+    ``("next", "reward")`` from the current reward modules at every sample (Algorithm 1, line 18)."""
+    return instantiate(cfg.algo.replay_buffer, storage={"device": str(device)})(transform=transform)
+
+
+def make_reward_learner(cfg: DictConfig, family: TaskFamily, env, device: torch.device, precision: str, step_fn,
+                        demos: list | None = None):
+    """The phase-1 reward learner of ``reward=<name>`` (:mod:`drs_torchrl.learners`), its checkpoint
+    metadata describing the training split. ``step_fn(loss, optimizers)``: backward and steps."""
+    split_args = family.env_args(cfg.env.split, OmegaConf.to_container(cfg.env.variant_overrides) if cfg.env.variant_overrides else None)
+    meta: dict[str, Any] = {
+        "family": family.name,
+        "env_id": split_args["env_id"],
+        "variant": cfg.env.split,
+        "variant_kwargs": split_args["env_kwargs"],
+        "stage_keys": list(family.stage_keys),
+        "seed": int(cfg.seed),
+    }
+    return new_reward_learner(cfg.reward, family, env, meta, device=device,
+                              autocast=functools.partial(autocast, precision, device), step_fn=step_fn, demos=demos)
+
+
+def make_collector(cfg: DictConfig, env, policy, frames: int, frames_done: int, device: torch.device):
+    """``algo.collector`` for the next ``frames`` env steps (``env`` may be a worker-process
+    constructor), with random actions until ``algo.learning_starts`` env steps in all."""
+    return instantiate(cfg.algo.collector)(env, policy, total_frames=frames,
+                                           init_random_frames=max(0, int(cfg.algo.learning_starts) - frames_done),
+                                           device=device)
