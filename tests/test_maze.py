@@ -207,7 +207,12 @@ def test_discriminator_on_maze_state_actions_prefers_the_demonstrated_moves():
         chance += float(good.float().mean(-1).sum())
         n += len(cells)
     assert hits / n > chance / n + 0.3, (hits / n, chance / n)
-    assert set(reward_diagnostics(reward, "train", 60)) == {"optimal_action_rate", "greedy_success"}
+    diag = reward_diagnostics(reward, "train", 60)
+    assert set(diag) == {"optimal_action_rate", "always_up_rate", "greedy_success"}
+    # a reward without preferences (every action equal) picks "up" everywhere: exactly the reference rate
+    flat = DrSReward(1, ["observation", "action"], {"observation": OBS_DIMS["onehot"], "action": 5}, formula="rescaled")
+    flat_diag = reward_diagnostics(flat, "train", 60)  # untrained discriminators score 0 for every (s, a)
+    assert flat_diag["optimal_action_rate"] == flat_diag["always_up_rate"] == diag["always_up_rate"] > 0.5
 
 
 def test_config_errors_name_the_fix():
@@ -457,6 +462,9 @@ def test_control_options_next_state_demos_only_constant_part_and_moved_gate_maps
     assert [(~grid[row]).nonzero().reshape(-1).tolist() for row in WALL_ROWS] == [[6], [10]]
 
 
+SHORT = [o if not o.startswith("total_frames=") else "total_frames=512" for o in TINY]
+
+
 @pytest.mark.parametrize("name", ["vice_raq", "oril", "gail"])
 def test_learned_baselines_run_on_the_maze_core_and_are_reused(name, tmp_path):
     """VICE-RAQ, ORIL and GAIL on the maze through the shared learners: phase 1 writes a classifier
@@ -464,7 +472,7 @@ def test_learned_baselines_run_on_the_maze_core_and_are_reused(name, tmp_path):
     another method is refused with the fix named."""
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base=None):
         s = train(compose("maze", overrides=["phase=learn", f"reward.name={name}", "demos=5", "reward.classifier.offline_updates=50",
-                                             "reward.classifier.random_episodes=3", "reward.classifier.batch_size=32", *TINY]),
+                                             "reward.classifier.random_episodes=3", "reward.classifier.batch_size=32", *SHORT]),
                   tmp_path / "learn")
         reward = load_reward(tmp_path / "learn" / "reward.pt")
         assert reward.method == name and reward.use_action == (name == "gail") and s["disc_updates"] > 0
@@ -477,12 +485,12 @@ def test_learned_baselines_run_on_the_maze_core_and_are_reused(name, tmp_path):
         reuse_as = ["gail", "gail_stages"] if name == "gail" else [name]
         for as_name in reuse_as:
             r2 = train(compose("maze", overrides=["phase=reuse", f"reward.name={as_name}", f"reward.checkpoint={tmp_path / 'learn' / 'reward.pt'}",
-                                                  "dqn.reward_scale=0.1", *TINY]), tmp_path / f"reuse-{as_name}")
+                                                  "dqn.reward_scale=0.1", *SHORT]), tmp_path / f"reuse-{as_name}")
             assert r2["map"] == "test" and r2["reward"] == as_name
         other = "vice_raq" if name != "vice_raq" else "oril"
         with pytest.raises(MazeConfigError, match="must match"):
             train(compose("maze", overrides=["phase=reuse", f"reward.name={other}", f"reward.checkpoint={tmp_path / 'learn' / 'reward.pt'}",
-                                             *TINY]), tmp_path / "bad")
+                                             *SHORT]), tmp_path / "bad")
     if name == "gail":  # the stage term: a success step earns w_s * 0, every other step w_s * (0 - 1) more than D alone
         frozen = load_reward(tmp_path / "learn" / "reward.pt")
         td = TensorDict({"observation": torch.zeros(2, OBS_DIMS["onehot"]), "action": onehot([0, 1]).float(),

@@ -30,6 +30,8 @@ The env is batched: ``num_envs`` independent grids step together as tensors, wit
 """
 from __future__ import annotations
 
+import functools
+
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Binary, Bounded, Categorical, Composite, OneHot, Unbounded
@@ -231,23 +233,34 @@ class ThreeRoomMaze(EnvBase):
     def shortest_distances(self) -> torch.Tensor:
         """Breadth-first distances (steps) from every cell to every goal cell: ``(n_goals, 17, 17)``,
         -1 for walls. The goal cells are :attr:`goal_cells` in order."""
-        out = torch.full((len(self.goal_cells), SIZE, SIZE), -1, dtype=torch.long)
-        free = ~self.grid
-        for i, (gr, gc) in enumerate(self.goal_cells.tolist()):
-            d = out[i]
-            d[gr, gc] = 0
-            frontier = [(gr, gc)]
-            while frontier:
-                nxt = []
-                for r, c in frontier:
-                    for dr, dc in MOVES[:4].tolist():
-                        rr, cc = r + dr, c + dc
-                        if free[rr, cc] and d[rr, cc] < 0:
-                            d[rr, cc] = d[r, c] + 1
-                            nxt.append((rr, cc))
-                frontier = nxt
-        return out
+        return _shortest_distances(self.map_name).clone()
 
     def __repr__(self) -> str:
         return (f"{type(self).__name__}(map={self.map_name!r}, gates={GATES[self.map_name]}, num_envs={self.num_envs}, "
                 f"max_steps={self.max_steps}, coords={self.coords!r})")
+
+
+@functools.lru_cache(maxsize=None)
+def _shortest_distances(map_name: str) -> torch.Tensor:
+    """:meth:`ThreeRoomMaze.shortest_distances` of a map, computed once per process (a BFS per goal)."""
+    free = (~make_grid(map_name)).tolist()  # python lists: a BFS reads single cells, which tensors make slow
+    goal_cells = room_cells(TOP_ROOM).tolist()
+    moves = MOVES[:4].tolist()
+    out = []
+    for gr, gc in goal_cells:
+        d = [[-1] * SIZE for _ in range(SIZE)]
+        d[gr][gc] = 0
+        frontier = [(gr, gc)]
+        while frontier:
+            nxt = []
+            for r, c in frontier:
+                for dr, dc in moves:
+                    rr, cc = r + dr, c + dc
+                    if free[rr][cc] and d[rr][cc] < 0:
+                        d[rr][cc] = d[r][c] + 1
+                        nxt.append((rr, cc))
+            frontier = nxt
+        out.append(d)
+    out = torch.tensor(out, dtype=torch.long)
+    return out
+
