@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 import csv
+import functools
 import json
 import os
 from pathlib import Path
@@ -105,6 +106,14 @@ def reward_diagnostics(reward: DrSReward, map_name: str, max_steps: int) -> dict
         done |= (pos == goals.unsqueeze(1)).all(-1)
     return {"optimal_action_rate": n_opt / max(n_all, 1), "always_up_rate": n_up / max(n_all, 1),
             "greedy_success": float(done.float().mean())}
+
+
+@functools.lru_cache(maxsize=None)
+def always_up_rate(map_name: str) -> float:
+    """:func:`reward_diagnostics`'s ``always_up_rate`` of a map (the reference a preference-free reward scores)."""
+    flat = DrSReward(1, ["observation"], {"observation": OBS_DIMS["patch"]}, formula="rescaled",
+                     metadata={"reward_on": "next_state"})  # untrained: the same value for every action
+    return reward_diagnostics(flat, map_name, 1)["always_up_rate"]
 
 
 def plot_reward_map(reward: DrSReward, path: str | os.PathLike, goal: tuple[int, int], maps=("train", "test")) -> Path:
@@ -229,10 +238,12 @@ def report(root, out: str | os.PathLike) -> dict:
     fig.tight_layout()
     fig.savefig(out / "curves.png", dpi=110)
     plt.close(fig)
-    diag = ["", "| learned reward (seed) | map | argmax_a R(s,a) is a shortest-path action | greedy on R reaches the goal |", "|---|---|---|---|"]
+    diag = ["", "| learned reward (seed) | map | argmax_a R(s,a) is a shortest-path action | same for always moving up (reference) | greedy on R reaches the goal |",
+            "|---|---|---|---|---|"]
     for summ, _, _ in runs:
         if summ["phase"] == "learn" and "reward_diagnostics" in summ:
             for m, v in summ["reward_diagnostics"].items():
-                diag.append(f"| {reward_label(summ)} {summ['seed']} | {m} | {v['optimal_action_rate']:.2f} | {v['greedy_success']:.2f} |")
+                up = f"{v.get('always_up_rate', always_up_rate(m)):.2f}"  # runs written before the field existed: computed
+                diag.append(f"| {reward_label(summ)} {summ['seed']} | {m} | {v['optimal_action_rate']:.2f} | {up} | {v['greedy_success']:.2f} |")
     (out / "table.md").write_text("\n".join(table + diag) + "\n")
     return {"runs": len(runs), "out": str(out)}
