@@ -37,6 +37,9 @@ for s in $SEEDS; do
   # 4. demonstrations as the only positives (the tabular argument's near-optimal success buffer)
   run learn-demos_only-s$s  phase=learn reward.positives=demos $X seed=$s
   run test-drs_demos_only-s$s phase=reuse reward.name=drs reward.checkpoint=$ROOT/learn-demos_only-s$s/reward.pt $X seed=$s
+  #    ... and that reward on the map it was learned on, and on gates moved 3 columns
+  run train-drs_demos_only-s$s phase=reuse map=train reward.name=drs reward.checkpoint=$ROOT/learn-demos_only-s$s/reward.pt $X seed=$s
+  run shift3-drs_demos_only-s$s phase=reuse map=test_shift3 reward.name=drs reward.checkpoint=$ROOT/learn-demos_only-s$s/reward.pt $X seed=$s
   # 5. horizon and targets, the patch reward on the test map: the authors' gamma 0.8; one-step targets
   run test-drs_patch_gamma0.8-s$s phase=reuse reward.name=drs reward.checkpoint=$PATCH/learn-s$s/reward.pt dqn.gamma=0.8 $X seed=$s
   run test-drs_patch_1step-s$s  phase=reuse reward.name=drs reward.checkpoint=$PATCH/learn-s$s/reward.pt dqn.n_steps=1 $X seed=$s
