@@ -24,6 +24,7 @@ run() {  # run NAME ARGS...: in this lane only
   if [ "$LANE" != all ] && [ $((i % 2)) -ne "$LANE" ]; then return; fi
   if [ -f "$ROOT/$dir/summary.json" ]; then echo "skip $dir (finished)"; return; fi
   echo "$(date -u +%H:%M:%S) $dir"
+  mkdir -p "$(dirname "$ROOT/logs/$dir.log")"
   bin/drs-maze "$@" hydra.run.dir="$ROOT/$dir" > "$ROOT/logs/$dir.log" 2>&1
 }
 if [ -z "${REPORT:-}" ]; then
@@ -43,6 +44,13 @@ if [ -z "${REPORT:-}" ]; then
   # the same frozen reward on the map it was learned on (same-map control), MSE
   run train-drs-s0 phase=reuse map=train reward.name=drs reward.checkpoint=$PATCH/learn-s0/reward.pt dqn.reward_scale=0.1 $M seed=0
 fi
+# DrS seed 0 is ../controls' test-drs_patch_mse-s0: copied when that run exists here, else run again
 mkdir -p "$ROOT/from_controls"
-[ -d "$ROOT/from_controls/test-drs_patch_mse-s0" ] || cp -r runs/maze/controls/test-drs_patch_mse-s0 "$ROOT/from_controls/" 2>/dev/null || true
+if [ ! -f "$ROOT/from_controls/test-drs_patch_mse-s0/summary.json" ]; then
+  if [ -f runs/maze/controls/test-drs_patch_mse-s0/summary.json ]; then
+    cp -r runs/maze/controls/test-drs_patch_mse-s0 "$ROOT/from_controls/"
+  elif [ -z "${REPORT:-}" ] && [ "$LANE" != 1 ]; then
+    LANE=all run from_controls/test-drs_patch_mse-s0 phase=reuse reward.name=drs reward.checkpoint=$PATCH/learn-s0/reward.pt dqn.reward_scale=0.1 $M seed=0
+  fi
+fi
 bin/drs-maze phase=report "report.root=[$ROOT]" report.out="$OUT"
