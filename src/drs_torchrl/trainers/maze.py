@@ -564,6 +564,11 @@ def _conf_dir() -> str:
 @hydra.main(config_path=_conf_dir(), config_name="maze", version_base=None)
 def main(cfg: DictConfig) -> None:
     """``drs-maze phase=learn|reuse|report ...`` (see conf/maze.yaml)."""
+    from drs_torchrl.console import library_messages_requested, quiet_libraries, survive_closed_output
+
+    survive_closed_output()
+    if not library_messages_requested():  # DRS_LIBRARY_MESSAGES=1 shows TorchRL's storage notices again
+        quiet_libraries()
     try:
         if cfg.phase == "report":
             res = report(cfg.report.root, cfg.report.out)

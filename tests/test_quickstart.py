@@ -1,0 +1,84 @@
+"""``drs-quickstart``, the README's first command: learn on the train map, reuse beside the baselines,
+figure and summary; interrupted runs exit 130 and continue; other settings in the same folder are refused."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+
+from drs_torchrl.quickstart import QuickstartError, plan, prepare_out
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ('extra=["num_envs=8","max_steps=40","dqn.frames_per_batch=128","dqn.learning_starts=256","dqn.batch_size=32",'
+        '"eval.interval=512","eval.episodes=8","reward.stage_buffer_size=4000","reward.disc.batch_size=32","demos=10"]')
+
+
+def _cmd(out: Path, *overrides: str) -> list[str]:
+    exe = Path(sys.executable).parent / "drs-quickstart"
+    base = [str(exe)] if exe.exists() else [sys.executable, "-m", "drs_torchrl.quickstart"]
+    return [*base, f"out={out}", "total_frames=1024", TINY, *overrides]
+
+
+@pytest.mark.slow
+def test_quickstart_learns_reuses_summarises_and_continues_after_an_interrupt(tmp_path):
+    out = tmp_path / "qs"
+    env = {**os.environ, "HYDRA_FULL_ERROR": "1"}
+    # interrupted once phase 1 has finished: exit 130, phase 1 kept
+    proc = subprocess.Popen(_cmd(out), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    deadline = time.time() + 150
+    while not (out / "learn" / "summary.json").is_file() and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.5)
+    assert (out / "learn" / "summary.json").is_file(), proc.communicate(timeout=60)
+    if proc.poll() is None:  # on a fast machine it may already be done; then there is nothing to interrupt
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+        if proc.returncode != 0:
+            assert proc.returncode == 130, err
+            assert "Run the same command again to continue" in err
+    # the same command continues and ends with the figure and the summary
+    done = subprocess.run(_cmd(out), capture_output=True, text=True, env=env, timeout=240, check=False)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "learn: finished earlier, kept" in done.stdout
+    assert "Phase 2, test map" in done.stdout and "DrS (frozen, reused)" in done.stdout and "sparse" in done.stdout
+    assert "Traceback" not in done.stdout + done.stderr
+    assert "LazyTensorStorage" not in (out / "logs" / "learn.log").read_text()  # library notices filtered
+    assert (out / "quickstart.png").read_bytes()[:4] == b"\x89PNG"
+    summary = json.loads((out / "summary.json").read_text())
+    assert set(summary["phase2"]) == {"drs", "sparse", "semi_sparse"}
+    assert summary["frames_per_run"] == 1024 and summary["phase1"]["disc_updates"] > 0
+    assert Path(summary["phase1"]["reward_checkpoint"]).is_file()
+    for run in ("learn", "reuse-drs", "reuse-sparse", "reuse-semi_sparse"):
+        assert (out / run / "train.csv").is_file(), run
+    drs_cfg = (out / "reuse-drs" / "config.yaml").read_text()
+    assert str(out / "learn" / "reward.pt") in drs_cfg and "loss_function: l2" in drs_cfg
+    # the folder holds this quickstart: other settings are refused, and nothing is touched
+    before = (out / "learn" / "summary.json").read_text()
+    bad = subprocess.run(_cmd(out, "seed=1"), capture_output=True, text=True, env=env, timeout=60, check=False)
+    assert bad.returncode == 2 and "other settings" in bad.stderr and "overwrite=true" in bad.stderr
+    assert (out / "learn" / "summary.json").read_text() == before
+
+
+def test_quickstart_plan_and_bad_settings(tmp_path):
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base=None):
+        cfg = compose("quickstart", overrides=["seed=3", "baselines=[dense]"])
+        jobs = plan(cfg, tmp_path)
+        assert [j.name for j in jobs] == ["learn", "reuse-dense", "reuse-drs"]
+        assert jobs[2].needs == ["learn"] and f"reward.checkpoint={tmp_path / 'learn' / 'reward.pt'}" in jobs[2].args
+        assert all("seed=3" in j.args and "dqn.loss_function=l2" in j.args for j in jobs)
+        with pytest.raises(QuickstartError, match="unknown baselines"):
+            plan(compose("quickstart", overrides=["baselines=[gail]"]), tmp_path)
+        with pytest.raises(QuickstartError, match="must be integers"):
+            plan(compose("quickstart", overrides=["seed=abc"]), tmp_path)
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "config.yaml").write_text("phase: learn\n")  # e.g. a drs-learn run
+    with pytest.raises(QuickstartError, match="not a quickstart"):
+        prepare_out(other, jobs, overwrite=True)
+    assert (other / "config.yaml").is_file()
