@@ -499,3 +499,17 @@ def test_learned_baselines_run_on_the_maze_core_and_are_reused(name, tmp_path):
         frozen.stage_weight = 1.0
         staged = frozen.reward(td)
         assert torch.allclose(staged - plain, torch.tensor([[-1.0], [0.0]]))
+
+
+def test_an_existing_run_directory_is_refused_unless_overwrite(tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "summary.json").write_text('{"old": true}')
+    (run / "train.csv").write_text("frames\n0\n")
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base=None):
+        with pytest.raises(MazeConfigError, match=r"already holds a run \(summary.json, train.csv\).*overwrite=true"):
+            train(compose("maze", overrides=["phase=reuse", "reward.name=sparse", *TINY]), run)
+        assert (run / "summary.json").read_text() == '{"old": true}'  # nothing touched
+        s = train(compose("maze", overrides=["phase=reuse", "reward.name=sparse", "overwrite=true", *TINY]), run)
+    assert s["frames"] == 1024 and "old" not in json.loads((run / "summary.json").read_text())
+    assert [int(r["frames"]) for r in csv.DictReader((run / "train.csv").read_text().splitlines())] == [0, 512, 1024]

@@ -27,7 +27,7 @@ run() {  # run DIR ARGS...: one drs-maze run into $ROOT/DIR unless it has finish
   if [ -f "$ROOT/$dir/summary.json" ]; then echo "skip $dir (finished)"; return; fi
   echo "$(date -u +%H:%M:%S) $dir"
   # shellcheck disable=SC2068
-  bin/drs-maze "$@" hydra.run.dir="$ROOT/$dir" > "$ROOT/logs/$dir.log" 2>&1
+  bin/drs-maze "$@" overwrite=true hydra.run.dir="$ROOT/$dir" > "$ROOT/logs/$dir.log" 2>&1
 }
 for s in 0 1 2; do
   # shellcheck disable=SC2086

@@ -19,7 +19,7 @@ run() {  # run NAME ARGS...
   local dir=$1; shift
   if [ -f "$ROOT/$dir/summary.json" ]; then echo "skip $dir (finished)"; return; fi
   echo "$(date -u +%H:%M:%S) $dir"
-  bin/drs-maze "$@" hydra.run.dir="$ROOT/$dir" > "$ROOT/logs/$dir.log" 2>&1
+  bin/drs-maze "$@" overwrite=true hydra.run.dir="$ROOT/$dir" > "$ROOT/logs/$dir.log" 2>&1
 }
 for s in $SEEDS; do
   for m in vice_raq oril gail; do

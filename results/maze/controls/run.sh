@@ -20,7 +20,7 @@ run() {  # run NAME ARGS...
   if [ -n "$ONLY" ] && [[ " $ONLY " != *" ${dir%-s*} "* ]]; then return; fi
   if [ -f "$ROOT/$dir/summary.json" ]; then echo "skip $dir (finished)"; return; fi
   echo "$(date -u +%H:%M:%S) $dir"
-  bin/drs-maze "$@" hydra.run.dir="$ROOT/$dir" > "$ROOT/logs/$dir.log" 2>&1
+  bin/drs-maze "$@" overwrite=true hydra.run.dir="$ROOT/$dir" > "$ROOT/logs/$dir.log" 2>&1
 }
 for s in $SEEDS; do
   # 1. gates moved 3 columns towards the middle instead of swapped: the patch reward vs the baselines

@@ -25,7 +25,7 @@ run() {  # run NAME ARGS...: in this lane only
   if [ -f "$ROOT/$dir/summary.json" ]; then echo "skip $dir (finished)"; return; fi
   echo "$(date -u +%H:%M:%S) $dir"
   mkdir -p "$(dirname "$ROOT/logs/$dir.log")"
-  bin/drs-maze "$@" hydra.run.dir="$ROOT/$dir" > "$ROOT/logs/$dir.log" 2>&1
+  bin/drs-maze "$@" overwrite=true hydra.run.dir="$ROOT/$dir" > "$ROOT/logs/$dir.log" 2>&1
 }
 if [ -z "${REPORT:-}" ]; then
   # the goal's two conditions first: DrS >= 0.9 and sparse <= 0.2, over 3 seeds (DrS seed 0 is ../controls/test-drs_patch_mse-s0)

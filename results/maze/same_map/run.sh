@@ -8,9 +8,9 @@ ROOT=${ROOT:-runs/maze/same_map}
 export RL_WARNINGS=0
 for s in 0 1 2; do
   d=$ROOT/onehot-x1-s$s
-  [ -f $d/summary.json ] || bin/drs-maze phase=reuse map=train reward.name=drs \
+  [ -f $d/summary.json ] || bin/drs-maze overwrite=true phase=reuse map=train reward.name=drs \
       reward.checkpoint=results/maze/run_files/learn-s$s/reward.pt seed=$s hydra.run.dir=$d
   d=$ROOT/patch-x0.1-s$s
-  [ -f $d/summary.json ] || bin/drs-maze phase=reuse map=train reward.name=drs reward.coords=patch dqn.reward_scale=0.1 \
+  [ -f $d/summary.json ] || bin/drs-maze overwrite=true phase=reuse map=train reward.name=drs reward.coords=patch dqn.reward_scale=0.1 \
       reward.checkpoint=results/maze/patch_scaled/run_files/learn-s$s/reward.pt seed=$s hydra.run.dir=$d
 done

@@ -285,6 +285,26 @@ def validate(cfg: DictConfig) -> None:
         raise MazeConfigError("; ".join(bad))
 
 
+RUN_FILES = ("summary.json", "train.csv", "config.yaml", "reward.pt", "policy.pt")
+
+
+def check_run_dir(run_dir: Path, overwrite: bool) -> None:
+    """Refuse a directory that holds a maze run (its files would be mixed or overwritten), unless
+    ``overwrite``: then that run's files go first. (A maze run takes minutes and keeps no training
+    state, so there is nothing to resume: an interrupted one is run again.)"""
+    found = [f for f in RUN_FILES if (run_dir / f).is_file()]
+    if not found:
+        return
+    if not overwrite:
+        raise MazeConfigError(f"{run_dir} already holds a run ({', '.join(found)}); choose another hydra.run.dir, "
+                              f"or replace it with overwrite=true")
+    for f in (*RUN_FILES, "reward_map.png"):
+        (run_dir / f).unlink(missing_ok=True)
+    import shutil
+
+    shutil.rmtree(run_dir / "tb", ignore_errors=True)
+
+
 # ----------------------------------------------------------------------------- factories
 def make_reward(cfg: DictConfig, map_name: str, learn: bool) -> tuple[DrSLearner | None, DrSReward | None]:
     """The DrS reward of the run: learned here by a :class:`~drs_torchrl.learners.DrSLearner` (phase 1,
@@ -395,6 +415,7 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
     np.random.seed(int(cfg.seed))
     learn, d = cfg.phase == "learn", cfg.dqn
     map_name = cfg.map or ("train" if learn else "test")
+    check_run_dir(run_dir, bool(cfg.get("overwrite", False)))
     learner, drs = make_reward(cfg, map_name, learn)
     # the run directory is written only once the reward (and its checkpoint) is known to be usable
     run_dir.mkdir(parents=True, exist_ok=True)
