@@ -71,7 +71,8 @@ def test_quickstart_plan_and_bad_settings(tmp_path):
         jobs = plan(cfg, tmp_path)
         assert [j.name for j in jobs] == ["learn", "reuse-dense", "reuse-drs"]
         assert jobs[2].needs == ["learn"] and f"reward.checkpoint={tmp_path / 'learn' / 'reward.pt'}" in jobs[2].args
-        assert all("seed=3" in j.args and "dqn.loss_function=l2" in j.args for j in jobs)
+        assert all("seed=3" in j.args for j in jobs)
+        assert "dqn.loss_function=smooth_l1" in jobs[0].args and all("dqn.loss_function=l2" in j.args for j in jobs[1:])
         with pytest.raises(QuickstartError, match="unknown baselines"):
             plan(compose("quickstart", overrides=["baselines=[gail]"]), tmp_path)
         with pytest.raises(QuickstartError, match="must be integers"):
