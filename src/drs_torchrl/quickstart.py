@@ -343,6 +343,8 @@ def main(cfg: DictConfig) -> None:
 
     survive_closed_output()
     out = Path(HydraConfig.get().runtime.output_dir)
+    if out.is_relative_to(Path.cwd()):  # shown and recorded as the user wrote it (runs/quickstart/seed0)
+        out = out.relative_to(Path.cwd())
     try:
         jobs = plan(cfg, out)
         kept = prepare_out(out, jobs, bool(cfg.overwrite))
@@ -353,7 +355,7 @@ def main(cfg: DictConfig) -> None:
     print(f"drs-quickstart: DrS on the three-room maze, seed {cfg.seed}, into {out}", flush=True)
     print(f"  phase 1 learns the reward on the train map; phase 2 reuses it on the test map beside "
           f"{', '.join(LABELS.get(b, b) for b in cfg.baselines)}; {len(todo)} runs of {int(cfg.total_frames)} env steps, "
-          f"{int(cfg.jobs)} at a time (about 15 min on 2 cores)", flush=True)
+          f"{int(cfg.jobs)} at a time (16 min on an idle 2-core CPU at the defaults)", flush=True)
     for name in kept:
         print(f"  {name}: finished earlier, kept", flush=True)
     t0 = time.perf_counter()
