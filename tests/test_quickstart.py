@@ -83,3 +83,19 @@ def test_quickstart_plan_and_bad_settings(tmp_path):
     with pytest.raises(QuickstartError, match="not a quickstart"):
         prepare_out(other, jobs, overwrite=True)
     assert (other / "config.yaml").is_file()
+
+
+def test_progress_prints_one_line_per_evaluation_without_a_terminal(capsys):
+    from drs_torchrl.quickstart import Job, Progress
+
+    p = Progress(1000, None)  # pytest's captured stdout is no terminal: lines, not bars
+    assert p.bars is False
+    job = Job("learn", "phase 1: DrS learns (train map)", [])
+    p.start(job)
+    row = {"frames": "500", "eval_success": "0.25", "train_success": "0.5", "disc_accuracy": "0.75"}
+    p.update(job, row)
+    p.update(job, row)  # the same row again: nothing new to say
+    p.end(job, True)
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 3 and "started" in lines[0] and lines[-1].endswith("done")
+    assert "500 steps, eval success 0.25, train success 0.50, disc acc 0.75" in lines[1]

@@ -117,7 +117,8 @@ class Progress:
 
     def __init__(self, total: int, bars: bool | None):
         self.total = total
-        self.bars = sys.stdout.isatty() if bars is None else bool(bars)
+        # a terminal without a size (e.g. under `script`) gets lines: tqdm would draw nothing there
+        self.bars = (sys.stdout.isatty() and shutil.get_terminal_size((0, 0)).columns >= 60) if bars is None else bool(bars)
         self.open: dict[str, object] = {}
         self.seen: dict[str, int] = {}
         self.t0 = time.perf_counter()
@@ -126,8 +127,10 @@ class Progress:
         if self.bars:
             from tqdm import tqdm
 
-            self.open[job.name] = tqdm(total=self.total, desc=f"{job.title:<36}", unit="step", unit_scale=True,
-                                       position=len(self.open), leave=True, dynamic_ncols=True, file=sys.stdout)
+            self.open[job.name] = tqdm(total=self.total, desc=f"{job.title:<34}", unit="step", unit_scale=True,
+                                       position=len(self.open), leave=True, file=sys.stdout,
+                                       bar_format="{desc} {percentage:3.0f}%|{bar:16}| {n_fmt}/{total_fmt} "
+                                                  "[{elapsed}<{remaining}{postfix}]")
         else:
             print(f"[{self._clock()}] {job.title}: started", flush=True)
 
