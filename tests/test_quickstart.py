@@ -23,7 +23,7 @@ TINY = ('extra=["num_envs=8","max_steps=40","dqn.frames_per_batch=128","dqn.lear
 def _cmd(out: Path, *overrides: str) -> list[str]:
     exe = Path(sys.executable).parent / "drs-quickstart"
     base = [str(exe)] if exe.exists() else [sys.executable, "-m", "drs_torchrl.quickstart"]
-    return [*base, f"out={out}", "total_frames=1024", TINY, *overrides]
+    return [*base, f"out={out}", "total_frames=1024", "baselines=[sparse]", TINY, *overrides]
 
 
 @pytest.mark.slow
@@ -51,10 +51,10 @@ def test_quickstart_learns_reuses_summarises_and_continues_after_an_interrupt(tm
     assert "LazyTensorStorage" not in (out / "logs" / "learn.log").read_text()  # library notices filtered
     assert (out / "quickstart.png").read_bytes()[:4] == b"\x89PNG"
     summary = json.loads((out / "summary.json").read_text())
-    assert set(summary["phase2"]) == {"drs", "sparse", "semi_sparse"}
+    assert set(summary["phase2"]) == {"drs", "sparse"}
     assert summary["frames_per_run"] == 1024 and summary["phase1"]["disc_updates"] > 0
     assert Path(summary["phase1"]["reward_checkpoint"]).is_file()
-    for run in ("learn", "reuse-drs", "reuse-sparse", "reuse-semi_sparse"):
+    for run in ("learn", "reuse-drs", "reuse-sparse"):
         assert (out / run / "train.csv").is_file(), run
     drs_cfg = (out / "reuse-drs" / "config.yaml").read_text()
     assert str(out / "learn" / "reward.pt") in drs_cfg and "loss_function: l2" in drs_cfg
