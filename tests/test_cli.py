@@ -46,6 +46,8 @@ def test_learn_writes_reward_policy_logs_and_config(learned):
     assert int(rows[-1]["frames"].split(".")[0]) >= 640
     for col in ("success_rate", "reach_stage_1", "reach_stage_3", "env_steps_per_s", "updates_per_s", "stage_buffer_0", "reward_mean"):
         assert col in rows[-1], col
+    timed = [r for r in rows if r.get("frac_time_waiting_for_data")]  # TorchRL timeit's drs/collect and drs/update
+    assert timed and all(0 < float(r["frac_time_waiting_for_data"]) <= 1 and float(r["collect_steps_per_s"]) > 0 for r in timed)
     summary = json.loads((learned / "summary.json").read_text())
     assert summary["frames"] >= 640 and summary["updates"] > 0
     eps = summary["stage_buffer_episodes"]

@@ -25,6 +25,7 @@ import torch
 from hydra.utils import get_class
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDict
+from torchrl import timeit
 from torchrl.collectors import AsyncCollector, MultiCollector
 from torchrl.data import LazyTensorStorage, ReplayBuffer
 from torchrl.envs.utils import ExplorationType, set_exploration_type
@@ -710,22 +711,33 @@ class Trainer:
 
 class _Window:
     """What happened since the last train-log row: SAC and reward-learner statistics, sampled
-    rewards, env steps, updates, and the seconds spent waiting for data and updating."""
+    rewards, env steps, updates, and the seconds spent waiting for data and updating (TorchRL's
+    ``timeit`` timers ``drs/collect`` and ``drs/update``, read as differences so that other
+    ``timeit`` users in the process are left alone)."""
+
+    TIMERS = ("collect", "update")
 
     def __init__(self):
         self.sac: list[TensorDict] = []
         self.disc: list[TensorDict] = []
         self.rewards: list[torch.Tensor] = []
         self.frames = self.updates = 0
-        self.seconds = {"collect": 0.0, "update": 0.0}
+        self._start = self._totals()
         self.t0 = time.perf_counter()
 
+    @classmethod
+    def _totals(cls) -> dict[str, float]:
+        totals = timeit.todict(percall=False)
+        return {w: totals.get(f"drs/{w}", 0.0) for w in cls.TIMERS}
+
+    @property
+    def seconds(self) -> dict[str, float]:
+        now = self._totals()
+        return {w: now[w] - self._start[w] for w in self.TIMERS}
+
     def timed(self, what: str, fn, *args):
-        t = time.perf_counter()
-        try:
+        with timeit(f"drs/{what}"):
             return fn(*args)
-        finally:
-            self.seconds[what] += time.perf_counter() - t
 
 
 class _Every:
