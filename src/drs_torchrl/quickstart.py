@@ -295,7 +295,7 @@ def summary_text(s: dict, out: Path) -> str:
         f"Files: {out}/quickstart.png (figure), summary.json, summary.md; {out}/learn/reward.pt (the reward);",
         f"       each run's train.csv and TensorBoard (tb/) under {out}/<run>/, logs under {out}/logs/.",
         "Next:",
-        "  drs-quickstart seed=1                      # another seed",
+        f"  drs-quickstart seed={s['seed'] + 1}                      # another seed",
         f"  drs-maze phase=reuse reward.name=drs reward.checkpoint={out}/learn/reward.pt map=test_shift3 dqn.loss_function=l2 dqn.reward_scale=0.1",
         "  drs-learn env=turn_valve                   # DrS with SAC on a ManiSkill3 family (about an hour a phase on 2 cores)",
     ]
