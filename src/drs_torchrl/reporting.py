@@ -45,6 +45,8 @@ def plot_runs(run_dirs: list[Path], out: Path) -> Path:
                 ax_eval.plot(ev["step"], ev[c], ls="--", alpha=0.6, label=f"{tag} eval {c.replace('reach_', '')}".strip())
         for c in sorted(c for c in train.columns if c.startswith("disc_accuracy_")):
             ax_disc.plot(x, train[c], label=f"{tag} D_{c.rsplit('_', 1)[1]}".strip())
+        if "disc_accuracy" in train and train["disc_accuracy"].notna().any():  # a baseline's single classifier
+            ax_disc.plot(x, train["disc_accuracy"], label=f"{tag} classifier".strip())
         if "reward_mean" in train:
             ax_rew.plot(x, train["reward_mean"], label=f"{tag} mean".strip())
             ax_rew.fill_between(x, train["reward_min"], train["reward_max"], alpha=0.15)
@@ -56,7 +58,7 @@ def plot_runs(run_dirs: list[Path], out: Path) -> Path:
     titles = [
         ("training episodes reaching stage k (rolling)", "rate", (0, 1.02)),
         ("evaluation (deterministic policy)", "rate", (0, 1.02)),
-        ("discriminator accuracy per stage", "accuracy", (0.4, 1.02)),
+        ("discriminator accuracy per stage (or the classifier's)", "accuracy", (0.4, 1.02)),
         ("reward on SAC batches (mean, min-max)", "reward", None),
         ("throughput", "per second", None),
         ("stage buffers (transitions)", "transitions", None),
