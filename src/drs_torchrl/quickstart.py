@@ -290,7 +290,8 @@ def summary_text(s: dict, out: Path) -> str:
         lines.append(f"Semi-sparse is DrS's own constant part without the learned term ({p2['semi_sparse']['success_last3']:.2f}); "
                      f"on this maze the learned term has not been shown to add to it (results/maze/README.md).")
     lines += [
-        "A single seed: DrS failed in 1 of 3 seeds of results/maze/mse/, when its agent never found the goal.",
+        "One seed says little: over seeds 0, 1, 2 of this command DrS reached 0.96, 0.99 and 0.00 (the seed-2 reward",
+        "held its agent away from the goal), sparse 0.35, 0.00, 0.00 (results/quickstart/README.md).",
         "",
         f"Files: {out}/quickstart.png (figure), summary.json, summary.md; {out}/learn/reward.pt (the reward);",
         f"       each run's train.csv and TensorBoard (tb/) under {out}/<run>/, logs under {out}/logs/.",
