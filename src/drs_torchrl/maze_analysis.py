@@ -234,7 +234,8 @@ def report(root, out: str | os.PathLike) -> dict:
         ax.set_ylabel("greedy eval success rate")
         ax.set_ylim(-0.05, 1.05)
         ax.grid(alpha=0.3)
-        ax.legend(loc="upper left")
+        if ax.get_legend_handles_labels()[0]:  # a phase without runs gets no empty legend
+            ax.legend(loc="upper left")
     fig.tight_layout()
     fig.savefig(out / "curves.png", dpi=110)
     plt.close(fig)
