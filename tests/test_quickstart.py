@@ -99,3 +99,16 @@ def test_progress_prints_one_line_per_evaluation_without_a_terminal(capsys):
     lines = capsys.readouterr().out.strip().splitlines()
     assert len(lines) == 3 and "started" in lines[0] and lines[-1].endswith("done")
     assert "500 steps, eval success 0.25, train success 0.50, disc acc 0.75" in lines[1]
+
+
+def test_a_failed_run_stops_the_others_and_names_its_log(tmp_path):
+    out = tmp_path / "qs"
+    # the baseline fails at once (bad reward name) while phase 1 is still running beside it
+    p = subprocess.run(_cmd(out, "total_frames=200000", 'reuse.sparse=["reward.name=nonsense"]'), capture_output=True,
+                       text=True, timeout=120, check=False)
+    assert p.returncode == 1, p.stderr[-2000:]
+    assert "run reuse-sparse failed" in p.stderr and "reward.name must be one of" in p.stderr
+    assert str(out / "logs" / "reuse-sparse.log") in p.stderr
+    assert not (out / "learn" / "summary.json").exists()  # phase 1 was stopped, not left running
+    ps = subprocess.run(["ps", "-eo", "args"], capture_output=True, text=True, check=True).stdout
+    assert str(out) not in ps

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from drs_torchrl.trainers.maze import _conf_dir
 
@@ -212,14 +212,14 @@ def run_jobs(jobs: list[Job], out: Path, n_parallel: int, progress: Progress, qu
                 active[job.name] = (job, subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env))
                 pending.remove(job)
             time.sleep(1.0)
-        for _, proc in active.values():
-            proc.wait()
     finally:
+        # stopped by a signal or by a failed run: the other runs stop too (nothing is left running)
+        for _, proc in active.values():
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+            proc.wait()
         for s, h in previous.items():
             signal.signal(s, h)
-        if stop["sig"] is not None:
-            for _, proc in active.values():
-                proc.wait()
     return stop["sig"]
 
 

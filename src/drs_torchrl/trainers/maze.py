@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import sys
 import time
 from collections import deque
@@ -300,8 +301,6 @@ def check_run_dir(run_dir: Path, overwrite: bool) -> None:
                               f"or replace it with overwrite=true")
     for f in (*RUN_FILES, "reward_map.png"):
         (run_dir / f).unlink(missing_ok=True)
-    import shutil
-
     shutil.rmtree(run_dir / "tb", ignore_errors=True)
 
 
