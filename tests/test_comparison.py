@@ -63,6 +63,35 @@ def test_groups_by_reward_and_averages_over_seeds(tmp_path):
     assert "| 2000 |" in drs_line and "3 (0, 1, 2)" in drs_line
 
 
+def test_auc_and_first_step_past_half_have_known_values(tmp_path):
+    # a: 0, 0.4, 0.8, 1.0 at 1k..4k; b: 0, 0.8, 0.8 (shorter); c: another group, 0.2 throughout
+    a = make_run(tmp_path, "a", "drs", 0, [0.0, 0.4, 0.8, 1.0], [0, 0, 0, 0])
+    b = make_run(tmp_path, "b", "drs", 1, [0.0, 0.8, 0.8], [0, 0, 0])
+    c = make_run(tmp_path, "c", "sparse", 0, [0.2, 0.2, 0.2, 0.2], [0, 0, 0, 0])
+    from drs_torchrl.comparison import group_runs, load_run, summary_rows
+    rows = {r["group"]: r for r in summary_rows(group_runs([load_run(x) for x in (a, b, c)]))}
+    # every AUC runs to the shortest evaluated run of the comparison (3k), from the first evaluation (1k)
+    assert rows["drs"]["auc_horizon"] == 3000
+    auc_a = ((0.0 + 0.4) / 2 + (0.4 + 0.8) / 2) / 2       # 0.4
+    auc_b = ((0.0 + 0.8) / 2 + (0.8 + 0.8) / 2) / 2       # 0.6
+    np.testing.assert_allclose(rows["drs"]["auc_mean"], np.mean([auc_a, auc_b]))
+    np.testing.assert_allclose(rows["drs"]["auc_std"], np.std([auc_a, auc_b]))
+    np.testing.assert_allclose(rows["sparse"]["auc_mean"], 0.2)
+    # the mean over both seeds is 0.6 at 2k (b alone would pass at 2k too, a alone at 3k)
+    assert rows["drs"]["first_step_0_5"] == 2000 and rows["sparse"]["first_step_0_5"] is None
+    md = compare([a, b, c], tmp_path / "out")["md"].read_text()
+    assert "success AUC to 3k" in md
+    assert "| 0.500 +- 0.100 | 2k |" in md and "| 0.200 +- 0.000 | not by 4k |" in md
+
+
+def test_first_step_counts_only_steps_every_seed_reached(tmp_path):
+    a = make_run(tmp_path, "a", "drs", 0, [0.0, 0.2, 1.0], [0, 0, 0])
+    b = make_run(tmp_path, "b", "drs", 1, [0.0, 0.2], [0, 0])   # interrupted before 3k
+    from drs_torchrl.comparison import first_step_over, load_run
+    assert first_step_over([load_run(a), load_run(b)]) is None   # a alone passes at 3k: not the group's mean
+    assert first_step_over([load_run(a)]) == 3000
+
+
 def test_a_step_logged_twice_counts_once(tmp_path):
     a = make_run(tmp_path, "a", "drs", 0, [0.0, 0.4], [0.0, 0.4])
     with (a / "eval.csv").open("a", newline="") as f:  # a resumed run repeats its last step

@@ -10,7 +10,9 @@ default, e.g. ``drs`` vs ``semi_sparse``), and writes:
   a group;
 - ``compare.csv``: the aggregated curves (group, metric, step, number of runs, mean, std);
 - ``compare.md``: per group the runs, the env steps the shortest run reached, the final evaluation
-  success per run, its mean +- std, and the mean over the last three evaluations.
+  success per run, its mean +- std, the mean over the last three evaluations, the area under the
+  success curve up to the shortest run of the comparison (normalised: 1.0 is success throughout), and
+  the first step at which the mean over all the group's seeds passes 0.5 (Issue 15's table).
 
 Runs of unequal length are averaged over the runs that reached each step (the ``n`` column).
 Everything here reads files only: it works on finished, interrupted and still-running runs.
@@ -114,15 +116,54 @@ def _stage_columns(frames: list) -> list[str]:
     return sorted(cols, key=lambda c: int(c.rsplit("_", 1)[1]))
 
 
+def _eval_curve(run: RunRecord) -> tuple[np.ndarray, np.ndarray]:
+    ev = run.eval.drop_duplicates("step", keep="last").sort_values("step")
+    return ev["step"].to_numpy(dtype=float), ev["success_rate"].to_numpy(dtype=float)
+
+
+def success_auc(steps: np.ndarray, success: np.ndarray, horizon: float) -> float:
+    """Area under one run's evaluation success curve up to ``horizon`` env steps, divided by its width.
+
+    Trapezoids over the evaluations at steps <= horizon, from the first one (no value is assumed at step
+    0: a fine-tuned agent starts above 0); 1.0 is success from the first evaluation on. NaN when fewer
+    than two evaluations fall in the range.
+    """
+    keep = steps <= horizon
+    x, y = steps[keep], success[keep]
+    if x.size < 2 or x[-1] <= x[0]:
+        return float("nan")
+    return float(np.sum((y[1:] + y[:-1]) * np.diff(x)) / 2.0 / (x[-1] - x[0]))
+
+
+def first_step_over(groups_runs: list[RunRecord], threshold: float = 0.5) -> float | None:
+    """The first evaluation step at which the mean success over all of a group's runs is >= threshold.
+
+    Only steps every run of the group has evaluated count (a mean over the runs that got there
+    would favour the luckiest seed); None when it never passes.
+    """
+    agg = aggregate([r.eval for r in groups_runs], "success_rate")
+    full = agg[agg["n"] == len(groups_runs)]
+    hit = full[full["mean"] >= threshold]
+    return float(hit["step"].iloc[0]) if len(hit) else None
+
+
 def summary_rows(groups: list[Group]) -> list[dict]:
+    """Per group: final and last-3 evaluation success, the normalised AUC up to the shortest evaluated
+    run of the whole comparison (so groups are compared over the same steps), and the first step at
+    which the group's mean success passes 0.5."""
+    evaluated = [r for g in groups for r in g.runs if r.eval is not None]
+    horizon = min((_eval_curve(r)[0][-1] for r in evaluated), default=float("nan"))
     rows = []
     for g in groups:
-        finals, last3 = [], []
+        finals, last3, aucs = [], [], []
         for r in g.runs:
             if r.eval is not None:
-                s = r.eval["success_rate"].to_numpy(dtype=float)
+                x, s = _eval_curve(r)
                 finals.append(float(s[-1]))
                 last3.append(float(np.mean(s[-3:])))
+                aucs.append(success_auc(x, s, horizon))
+        full = [r for r in g.runs if r.eval is not None]
+        aucs = [a for a in aucs if a == a]
         rows.append({
             "group": g.label,
             "runs": len(g.runs),
@@ -132,6 +173,10 @@ def summary_rows(groups: list[Group]) -> list[dict]:
             "final_mean": float(np.mean(finals)) if finals else float("nan"),
             "final_std": float(np.std(finals)) if finals else float("nan"),
             "last3_mean": float(np.mean(last3)) if last3 else float("nan"),
+            "auc_horizon": float(horizon),
+            "auc_mean": float(np.mean(aucs)) if aucs else float("nan"),
+            "auc_std": float(np.std(aucs)) if aucs else float("nan"),
+            "first_step_0_5": first_step_over(full) if len(full) == len(g.runs) and full else None,
         })
     return rows
 
@@ -194,14 +239,21 @@ def compare(run_dirs: list[Path], out_dir: Path, group_by: tuple[str, ...] = DEF
     plt.close(fig)
     pd.DataFrame.from_records(records, columns=["group", "source", "metric", "step", "n", "mean", "std"]).to_csv(
         paths["csv"], index=False)
+    rows = summary_rows(groups)
+    horizon = rows[0]["auc_horizon"] if rows else float("nan")
+    h = _steps_label(horizon) if horizon == horizon else "-"
     lines = [f"| {' / '.join(group_by)} | runs (seeds) | env steps (shortest run) | final eval success per run | "
-             "mean +- std | mean of the last 3 evals |", "|---|---|---|---|---|---|"]
-    for row in summary_rows(groups):
+             f"mean +- std | mean of the last 3 evals | success AUC to {h} (mean +- std) | mean success >= 0.5 first at |",
+             "|---|---|---|---|---|---|---|---|"]
+    for row in rows:
         finals = ", ".join(f"{x:.2f}" for x in row["final"]) or "(no eval yet)"
         ms = f"{row['final_mean']:.2f} +- {row['final_std']:.2f}" if row["final"] else "-"
         l3 = f"{row['last3_mean']:.2f}" if row["final"] else "-"
+        auc = f"{row['auc_mean']:.3f} +- {row['auc_std']:.3f}" if row["auc_mean"] == row["auc_mean"] else "-"
+        first = (_steps_label(row["first_step_0_5"]) if row["first_step_0_5"] is not None
+                 else (f"not by {_steps_label(row['steps'])}" if row["final"] else "-"))
         seeds = ", ".join(str(s) for s in row["seeds"])
-        lines.append(f"| {row['group']} | {row['runs']} ({seeds}) | {row['steps']} | {finals} | {ms} | {l3} |")
+        lines.append(f"| {row['group']} | {row['runs']} ({seeds}) | {row['steps']} | {finals} | {ms} | {l3} | {auc} | {first} |")
     lines.append("")
     lines.append("Runs: " + ", ".join(f"`{r.path}`" for g in groups for r in g.runs))
     paths["md"].write_text("\n".join(lines) + "\n")
