@@ -58,8 +58,9 @@ def _lookup(cfg: dict, dotted: str, run: Path):
     return node
 
 
-def load_run(run: Path, group_by: tuple[str, ...] = DEFAULT_GROUP_BY) -> RunRecord:
-    """One run directory: its CSVs and its group label (the values of ``group_by`` in its config)."""
+def load_run(run: Path, group_by: tuple[str, ...] = DEFAULT_GROUP_BY, label: str | None = None) -> RunRecord:
+    """One run directory: its CSVs and its group label (the values of ``group_by`` in its config, or
+    ``label`` when given, e.g. a study's run name without its seed)."""
     import pandas as pd
     from omegaconf import OmegaConf
 
@@ -72,7 +73,8 @@ def load_run(run: Path, group_by: tuple[str, ...] = DEFAULT_GROUP_BY) -> RunReco
     if not cfg_path.exists():
         raise CompareError(f"{run} has neither config.yaml nor .hydra/config.yaml: cannot tell which group it belongs to")
     cfg = OmegaConf.to_container(OmegaConf.load(cfg_path), resolve=False) or {}
-    label = " ".join(f"{_lookup(cfg, k, run)}" for k in group_by)
+    if label is None:
+        label = " ".join(f"{_lookup(cfg, k, run)}" for k in group_by)
     ev = pd.read_csv(run / "eval.csv") if (run / "eval.csv").exists() else None
     if ev is not None and ev.empty:
         ev = None
@@ -182,11 +184,13 @@ def summary_rows(groups: list[Group]) -> list[dict]:
 
 
 def _steps_label(x, _pos=None) -> str:
-    return f"{x / 1e6:g}M" if abs(x) >= 1e6 else f"{x / 1e3:g}k" if abs(x) >= 1e3 else f"{x:g}"
+    return f"{x / 1e6:.4g}M" if abs(x) >= 1e6 else f"{x / 1e3:.4g}k" if abs(x) >= 1e3 else f"{x:g}"
 
 
-def compare(run_dirs: list[Path], out_dir: Path, group_by: tuple[str, ...] = DEFAULT_GROUP_BY) -> dict[str, Path]:
-    """Group ``run_dirs``, write ``compare.png``, ``compare.csv`` and ``compare.md`` into ``out_dir``."""
+def compare(run_dirs: list[Path], out_dir: Path, group_by: tuple[str, ...] = DEFAULT_GROUP_BY,
+            labels: list[str] | None = None) -> dict[str, Path]:
+    """Group ``run_dirs`` (by ``group_by``, or by ``labels``, one per run), write ``compare.png``,
+    ``compare.csv`` and ``compare.md`` into ``out_dir``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -196,7 +200,11 @@ def compare(run_dirs: list[Path], out_dir: Path, group_by: tuple[str, ...] = DEF
 
     if not run_dirs:
         raise CompareError("no run directories given")
-    groups = group_runs([load_run(Path(r), tuple(group_by)) for r in run_dirs])
+    if labels is not None and len(labels) != len(run_dirs):
+        raise CompareError(f"{len(labels)} labels for {len(run_dirs)} run directories")
+    groups = group_runs([load_run(Path(r), tuple(group_by), None if labels is None else labels[i])
+                         for i, r in enumerate(run_dirs)])
+    title_key = ", ".join(group_by) if labels is None else "run name without its seed"
     # the last reach column is the success stage, already drawn as success_rate
     eval_stages = _stage_columns([r.eval for g in groups for r in g.runs])[:-1]
     train_stages = _stage_columns([r.train for g in groups for r in g.runs])[:-1]
@@ -230,7 +238,7 @@ def compare(run_dirs: list[Path], out_dir: Path, group_by: tuple[str, ...] = DEF
             ax.legend(fontsize=8)
     for ax in axes.ravel()[len(panels):]:
         ax.set_visible(False)
-    fig.suptitle("mean and std over the runs of each group (" + ", ".join(group_by) + ")", fontsize=10)
+    fig.suptitle(f"mean and std over the runs of each group ({title_key})", fontsize=10)
     fig.tight_layout()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -242,7 +250,7 @@ def compare(run_dirs: list[Path], out_dir: Path, group_by: tuple[str, ...] = DEF
     rows = summary_rows(groups)
     horizon = rows[0]["auc_horizon"] if rows else float("nan")
     h = _steps_label(horizon) if horizon == horizon else "-"
-    lines = [f"| {' / '.join(group_by)} | runs (seeds) | env steps (shortest run) | final eval success per run | "
+    lines = [f"| {' / '.join(group_by) if labels is None else 'runs'} | runs (seeds) | env steps (shortest run) | final eval success per run | "
              f"mean +- std | mean of the last 3 evals | success AUC to {h} (mean +- std) | mean success >= 0.5 first at |",
              "|---|---|---|---|---|---|---|---|"]
     for row in rows:

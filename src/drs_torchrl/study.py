@@ -6,6 +6,7 @@ what has finished, so the same command is re-run across sessions until the study
 
     drs-study results/precision/study.yaml --jobs 2          # both cores, one torch thread per run
     drs-study results/precision/study.yaml --status          # what is done, what is left
+    drs-study results/precision/study.yaml --report results/precision   # the record to commit (below)
 
 Study file::
 
@@ -21,6 +22,13 @@ A run is finished when its ``summary.json`` says it was not interrupted and it r
 runs). SIGINT/SIGTERM to the study stop every run at its next batch boundary (each
 saves its training state) and the study exits 130/143; re-invoke it to continue.
 (Hydra's multirun launchers start every job afresh and know neither resuming nor skipping.)
+
+``--report OUT`` reads the run directories only (finished, interrupted or still running) and writes
+what a results folder commits, never training states: ``OUT/run_files/<run>/`` (``train.csv``,
+``eval.csv``, ``config.yaml``, ``summary.json``; a phase-1 run's ``reward.pt`` too), ``OUT/status.md``
+(each run's state, env steps and last evaluation), and ``drs-compare`` of the phase-2 runs into ``OUT/``
+and of the phase-1 runs into ``OUT/learn/``, grouped by run name without its seed (``drs_s0``,
+``drs_s1`` -> ``drs``).
 """
 from __future__ import annotations
 
@@ -145,6 +153,81 @@ def command(run: Run, run_dir: Path, state: str) -> list[str]:
     return [exe, *run.args, f"hydra.run.dir={run_dir}"]
 
 
+RECORD_FILES = ("train.csv", "eval.csv", "config.yaml", "summary.json")
+
+
+def group_name(run_name: str) -> str:
+    """A run's name without its seed: ``drs_s0`` / ``seed-1`` suffixes name the seed, not the method."""
+    return re.sub(r"[_-](s|seed-)\d+$", "", run_name) or run_name
+
+
+def _copy_record(src: Path, dst: Path) -> None:
+    """A text record with this checkout's absolute path removed, so the copy reads the same anywhere."""
+    text = src.read_text()
+    dst.write_text(text.replace(str(Path.cwd().resolve()) + os.sep, ""))
+
+
+def _last_eval(run_dir: Path) -> str:
+    f = run_dir / "eval.csv"
+    lines = f.read_text().strip().splitlines() if f.is_file() else []
+    if len(lines) < 2:
+        return "-"
+    head, last = lines[0].split(","), lines[-1].split(",")
+    row = dict(zip(head, last))
+    try:
+        return f"{float(row['success_rate']):.2f} at {int(float(row['step']))}"
+    except (KeyError, ValueError):
+        return "-"
+
+
+def _frames(run_dir: Path) -> int:
+    f = run_dir / "train.csv"
+    lines = f.read_text().strip().splitlines() if f.is_file() else []
+    try:
+        return int(float(lines[-1].split(",")[0])) if len(lines) > 1 else 0
+    except ValueError:
+        return 0
+
+
+def report(root: Path, runs: list[Run], out: Path, study_file: str | Path = "") -> dict[str, Path]:
+    """Copy each run's record into ``out/run_files``, write ``out/status.md`` and the comparisons."""
+    from drs_torchrl.comparison import CompareError, compare
+
+    out = Path(out)
+    files = out / "run_files"
+    files.mkdir(parents=True, exist_ok=True)
+    rows = ["| run | app | state | env steps (asked) | last evaluation: success at step |", "|---|---|---|---|---|"]
+    copied: dict[str, list[Path]] = {"reuse": [], "learn": []}
+    for r in runs:
+        run_dir = root / r.name
+        state = run_state(run_dir, wanted_frames(r))
+        asked = wanted_frames(r)
+        rows.append(f"| `{r.name}` | {r.app} | {state} | {_frames(run_dir):,} ({asked if asked else 'its default'}) | {_last_eval(run_dir)} |")
+        if not (run_dir / "train.csv").is_file():
+            continue
+        dst = files / r.name
+        dst.mkdir(exist_ok=True)
+        for name in RECORD_FILES:
+            if (run_dir / name).is_file():
+                _copy_record(run_dir / name, dst / name)
+        if r.app == "learn" and (run_dir / "checkpoints" / "reward.pt").is_file():
+            shutil.copy2(run_dir / "checkpoints" / "reward.pt", dst / "reward.pt")
+        if (dst / "config.yaml").is_file():
+            copied[r.app].append(dst)
+    paths = {"status": out / "status.md"}
+    head = f"Written by `drs-study {study_file} --report {out}`; states as `drs-study --status` sees them.\n\n"
+    paths["status"].write_text(head + "\n".join(rows) + "\n")
+    for app, where in (("reuse", out), ("learn", out / "learn")):
+        if copied[app]:
+            try:
+                made = compare(copied[app], where, labels=[group_name(d.name) for d in copied[app]])
+            except CompareError as exc:
+                print(f"drs-study: report: {app} runs not compared: {exc}", file=sys.stderr)
+                continue
+            paths.update({f"{app}_{k}": v for k, v in made.items()})
+    return paths
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="drs-study", description=__doc__.split("\n")[0])
     p.add_argument("study", help="study YAML file")
@@ -152,6 +235,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--threads", type=int, default=1, help="torch threads per run (default 1)")
     p.add_argument("--status", action="store_true", help="print each run's state and exit")
     p.add_argument("--only", nargs="*", default=None, help="run only these run names")
+    p.add_argument("--report", type=Path, metavar="OUT", default=None,
+                   help="write the study's record (run files, status.md, drs-compare figures) into OUT and exit")
     a = p.parse_args(argv)
     try:
         root, runs = load_study(a.study)
@@ -166,6 +251,14 @@ def main(argv: list[str] | None = None) -> int:
         runs = [r for r in runs if r.name in a.only]
     want = {r.name: wanted_frames(r) for r in runs}
     states = {r.name: run_state(root / r.name, want[r.name]) for r in runs}
+    if a.report is not None:
+        if a.report.resolve() == root.resolve() or root.resolve() in a.report.resolve().parents:
+            print(f"drs-study: error: --report {a.report} is inside the study's run root {root}: give a results folder",
+                  file=sys.stderr)
+            return 2
+        for path in report(root, runs, a.report, a.study).values():
+            print(path)
+        return 0
     if a.status:
         for r in runs:
             print(f"{states[r.name]:>10}  {root / r.name}")
