@@ -10,3 +10,34 @@ def pick_cube():
     from drs_torchrl.tasks import get_family
 
     return get_family("pick_cube")
+
+
+@pytest.fixture
+def cli(monkeypatch, capsys):
+    """``cli("learn", *overrides) -> (exit code, stderr)``: the drs-learn / drs-reuse Hydra app in this
+    process, for commands that stop before simulating (bad input). The same app, config composition
+    and error handling as the console scripts, without starting an interpreter (each costs ~10 s
+    here); the runs that simulate keep their subprocess. Whatever the app changes process-wide
+    (environment, warning filters, streams) is put back."""
+    import sys
+    import warnings
+
+    from drs_torchrl.trainers import apps
+
+    def call(app: str, *args: str) -> tuple[int, str]:
+        main = {"learn": apps.learn_main, "reuse": apps.reuse_main}[app]
+        env, filters, streams = dict(os.environ), warnings.filters[:], (sys.stdout, sys.stderr)
+        monkeypatch.setattr(sys, "argv", [f"drs-{app}", *args])
+        code = 0
+        try:
+            main()
+        except SystemExit as exc:
+            code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+        finally:
+            os.environ.clear()
+            os.environ.update(env)
+            warnings.filters[:] = filters
+            sys.stdout, sys.stderr = streams
+        return code, capsys.readouterr().err
+
+    return call

@@ -114,23 +114,25 @@ def test_reuse_rejects_a_checkpoint_that_does_not_fit(learned, tmp_path):
     assert r.num_stages == 3
 
 
-def test_reuse_without_checkpoint_and_bad_values_fail_clearly(tmp_path):
+def test_reuse_without_checkpoint_and_bad_values_fail_clearly(tmp_path, cli):
+    # the console script itself: exit 2 and the fix, on stderr
     p = run("drs-reuse", *TINY, f"hydra.run.dir={tmp_path / 'a'}", cwd=tmp_path)
     assert p.returncode == 2 and "reward.checkpoint=PATH" in p.stderr
-    p = run("drs-learn", *TINY, "total_frames=-5", f"hydra.run.dir={tmp_path / 'b'}", cwd=tmp_path)
-    assert p.returncode == 2 and "total_frames must be > 0" in p.stderr
-    p = run("drs-learn", *TINY, "reward.alpha=0.6", f"hydra.run.dir={tmp_path / 'c'}", cwd=tmp_path)
-    assert p.returncode == 2 and "alpha=0.6 breaks the stage ordering" in p.stderr
-    p = run("drs-learn", *TINY, "env.family=nope", f"hydra.run.dir={tmp_path / 'd'}", cwd=tmp_path)
-    assert p.returncode == 2 and "unknown task family 'nope'" in p.stderr
-    p = run("drs-learn", *TINY, "algo.batchsize=3", f"hydra.run.dir={tmp_path / 'e'}", cwd=tmp_path)
-    assert p.returncode != 0 and "batchsize" in p.stderr
-    p = run("drs-learn", *TINY, "env.split=cube_9cm", f"hydra.run.dir={tmp_path / 'f'}", cwd=tmp_path)
-    assert p.returncode == 2 and "no variant 'cube_9cm'" in p.stderr
-    p = run("drs-learn", *TINY, "reward=vice", f"hydra.run.dir={tmp_path / 'g'}", cwd=tmp_path)
-    assert p.returncode != 0 and "Could not find 'reward/vice'" in p.stderr and "semi_sparse" in p.stderr
-    p = run("drs-learn", *TINY, "algo.buffer_size=16", f"hydra.run.dir={tmp_path / 'h'}", cwd=tmp_path)
-    assert p.returncode == 2 and "smaller than algo.batch_size" in p.stderr
+    # the same app in this process for the rest (each stops before simulating)
+    for args, expect in [
+        (["total_frames=-5"], "total_frames must be > 0"),
+        (["reward.alpha=0.6"], "alpha=0.6 breaks the stage ordering"),
+        (["env.family=nope"], "unknown task family 'nope'"),
+        (["env.split=cube_9cm"], "no variant 'cube_9cm'"),
+        (["algo.buffer_size=16"], "smaller than algo.batch_size"),
+    ]:
+        code, err = cli("learn", *TINY, *args, f"hydra.run.dir={tmp_path / 'b'}")
+        assert code == 2 and expect in err, (args, code, err[-2000:])
+        assert not (tmp_path / "b" / "config.yaml").exists()
+    code, err = cli("learn", *TINY, "algo.batchsize=3", f"hydra.run.dir={tmp_path / 'e'}")
+    assert code != 0 and "batchsize" in err
+    code, err = cli("learn", *TINY, "reward=vice", f"hydra.run.dir={tmp_path / 'g'}")
+    assert code != 0 and "Could not find 'reward/vice'" in err and "semi_sparse" in err
 
 
 def test_learn_with_two_cpu_envs(tmp_path):

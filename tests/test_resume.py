@@ -106,7 +106,7 @@ def _digest(d: Path) -> dict:
     return {str(f.relative_to(d)): hashlib.sha256(f.read_bytes()).hexdigest() for f in d.rglob("*") if f.is_file()}
 
 
-def test_reuse_resumes_and_bad_resumes_leave_the_run_untouched(tmp_path):
+def test_reuse_resumes_and_bad_resumes_leave_the_run_untouched(tmp_path, cli):
     env = dict(os.environ, PYTHONWARNINGS="ignore")
     run_dir = tmp_path / "reuse"
     args = [a for a in TINY if not a.startswith("reward.disc")]
@@ -117,10 +117,10 @@ def test_reuse_resumes_and_bad_resumes_leave_the_run_untouched(tmp_path):
     for bad, code, expect in [(["algo=sac_paper"], 2, "cannot switch config group 'algo'"),
                               (["algo.no_such_key=1"], 1, "no_such_key"),  # Hydra refuses it when composing
                               (["total_frames=-3"], 2, "total_frames must be > 0")]:
-        p = subprocess.run([str(BIN / "drs-reuse"), f"resume={run_dir}", *bad], env=env, capture_output=True, text=True, timeout=300)
-        assert p.returncode == code and expect in p.stderr, p.stderr[-2000:]
-    p = subprocess.run([str(BIN / "drs-learn"), f"resume={run_dir}"], env=env, capture_output=True, text=True, timeout=300)
-    assert p.returncode == 2 and "resume it with drs-reuse" in p.stderr
+        got, err = cli("reuse", f"resume={run_dir}", *bad)  # the console script's app, in this process
+        assert got == code and expect in err, err[-2000:]
+    got, err = cli("learn", f"resume={run_dir}")
+    assert got == 2 and "resume it with drs-reuse" in err
     assert _digest(run_dir) == before, "a failed resume changed or added files in the run directory"
     p = subprocess.run([str(BIN / "drs-reuse"), f"resume={run_dir}", "total_frames=768"], env=env, capture_output=True, text=True, timeout=600)
     assert p.returncode == 0, p.stderr[-3000:]
