@@ -34,6 +34,9 @@ def cli(monkeypatch, capsys):
         except SystemExit as exc:
             code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
         finally:
+            from hydra.core.global_hydra import GlobalHydra
+
+            GlobalHydra.instance().clear()  # so that compose() in later tests starts clean
             os.environ.clear()
             os.environ.update(env)
             warnings.filters[:] = filters
