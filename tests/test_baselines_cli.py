@@ -189,6 +189,15 @@ def test_demonstrations_fill_a_share_of_every_sac_batch(tmp_path, demos):
         Trainer(cfg(f"demos.path={demos}", "demos.sac_share=0.25", "reward=sparse"), "learn", tmp_path / "b")
     with pytest.raises(ConfigError, match="must be in \\[0, 1\\)"):
         Trainer(cfg(f"demos.path={demos}", "demos.sac_share=1.5"), "learn", tmp_path / "c")
+    # actions of another controller (e.g. the planner's joint positions) are refused with the fix
+    from drs_torchrl.demos import save_demos
+
+    episodes, meta = load_demos(demos)
+    wide = torch.cat(episodes)
+    wide.set("action", torch.cat([wide["action"], wide["action"]], -1))
+    meta = {**meta, "actions": {**meta["actions"], "size": 12}}
+    with pytest.raises(ConfigError, match="12-dimensional; this run acts with 6-dimensional.*drs-demos --control-mode"):
+        Trainer(cfg(f"demos.path={save_demos(wide, meta, tmp_path / 'wide.demos')}", "demos.sac_share=0.25"), "learn", tmp_path / "d")
 
 
 @pytest.mark.parametrize("use_action", [False, True])

@@ -315,6 +315,12 @@ class Trainer:
         if "action" not in demos[0].keys() or "state" not in demos[0].keys():
             raise ConfigError(f"demos.sac_share: {cfg.demos.path} holds states only; SAC needs the agent's actions and "
                               "the states they were taken in (drs-demos --from-policy records them)")
+        have, want = int(demos[0]["action"].shape[-1]), int(self.env.action_spec.shape[-1])
+        if have != want:
+            mode = cfg.env.control_mode or self.family.env_args(cfg.env.split).get("control_mode") or self.family.control_mode
+            raise ConfigError(f"demos.sac_share: the actions in {cfg.demos.path} are {have}-dimensional; this run acts with "
+                              f"{want}-dimensional {mode} commands. Record the demonstrations in the agent's controller "
+                              f"(drs-demos --control-mode {mode}, the default, or drs-demos --from-policy), or set demos.sac_share=0")
         root_keys = [k for k in self.loss.in_keys if isinstance(k, str) and k != "action"]
         next_keys = list(dict.fromkeys([*root_keys, *self.learned.reward_in_keys, "stage"]))
         rows = []
