@@ -82,6 +82,16 @@ def test_auc_and_first_step_past_half_have_known_values(tmp_path):
     md = compare([a, b, c], tmp_path / "out")["md"].read_text()
     assert "success AUC to 3k" in md
     assert "| 0.500 +- 0.100 | 2k |" in md and "| 0.200 +- 0.000 | not by 4k |" in md
+    # training episodes: reach_stage_1 is 0 throughout, success (the rolling train column, half the eval's) never 0.5
+    assert "| drs | not by 3k | not by 3k |" in md
+
+
+def test_training_table_gives_the_first_step_each_stage_passes_half(tmp_path):
+    a = make_run(tmp_path, "a", "drs", 0, [0.0, 0.4, 1.0], [0.2, 0.6, 1.0])   # train: stage 1 = reach1, success = y / 2
+    b = make_run(tmp_path, "b", "drs", 1, [0.0, 0.0, 1.0], [0.4, 0.8, 1.0])
+    md = compare([a, b], tmp_path / "out")["md"].read_text()
+    # stage 1: mean 0.3, 0.7, 1.0 -> 2k; success: mean 0, 0.1, 0.5 -> 3k
+    assert "| group | reached stage 1 | success |" in md and "| drs | 2k | 3k |" in md
 
 
 def test_first_step_counts_only_steps_every_seed_reached(tmp_path):

@@ -12,7 +12,8 @@ default, e.g. ``drs`` vs ``semi_sparse``), and writes:
 - ``compare.md``: per group the runs, the env steps the shortest run reached, the final evaluation
   success per run, its mean +- std, the mean over the last three evaluations, the area under the
   success curve up to the shortest run of the comparison (normalised: 1.0 is success throughout), and
-  the first step at which the mean over all the group's seeds passes 0.5 (Issue 15's table).
+  the first step at which the mean over all the group's seeds passes 0.5 (issue 15's table); and for
+  training episodes, the first step each stage and success pass 0.5 (issue 12's table).
 
 Runs of unequal length are averaged over the runs that reached each step (the ``n`` column).
 Everything here reads files only: it works on finished, interrupted and still-running runs.
@@ -137,13 +138,14 @@ def success_auc(steps: np.ndarray, success: np.ndarray, horizon: float) -> float
     return float(np.sum((y[1:] + y[:-1]) * np.diff(x)) / 2.0 / (x[-1] - x[0]))
 
 
-def first_step_over(groups_runs: list[RunRecord], threshold: float = 0.5) -> float | None:
+def first_step_over(groups_runs: list[RunRecord], threshold: float = 0.5, source: str = "eval",
+                    column: str = "success_rate") -> float | None:
     """The first evaluation step at which the mean success over all of a group's runs is >= threshold.
 
     Only steps every run of the group has evaluated count (a mean over the runs that got there
     would favour the luckiest seed); None when it never passes.
     """
-    agg = aggregate([r.eval for r in groups_runs], "success_rate")
+    agg = aggregate([getattr(r, source) for r in groups_runs], column)
     full = agg[agg["n"] == len(groups_runs)]
     hit = full[full["mean"] >= threshold]
     return float(hit["step"].iloc[0]) if len(hit) else None
@@ -262,6 +264,15 @@ def compare(run_dirs: list[Path], out_dir: Path, group_by: tuple[str, ...] = DEF
                  else (f"not by {_steps_label(row['steps'])}" if row["final"] else "-"))
         seeds = ", ".join(str(s) for s in row["seeds"])
         lines.append(f"| {row['group']} | {row['runs']} ({seeds}) | {row['steps']} | {finals} | {ms} | {l3} | {auc} | {first} |")
+    if train_stages:  # when each stage is first reached in half the training episodes (issue 12's table)
+        cols = [*train_stages, "success_rate"]
+        lines += ["", "Training episodes (rolling window), mean over each group's runs: the first step at which it passes 0.5",
+                  "", "| group | " + " | ".join(f"reached stage {c.rsplit('_', 1)[1]}" for c in train_stages) + " | success |",
+                  "|---|" + "---|" * len(cols)]
+        for g in groups:
+            firsts = [first_step_over(g.runs, source="train", column=c) for c in cols]
+            end = _steps_label(min(int(r.train["step"].iloc[-1]) for r in g.runs))
+            lines.append(f"| {g.label} | " + " | ".join(_steps_label(f) if f is not None else f"not by {end}" for f in firsts) + " |")
     lines.append("")
     lines.append("Runs: " + ", ".join(f"`{r.path}`" for g in groups for r in g.runs))
     paths["md"].write_text("\n".join(lines) + "\n")
