@@ -200,8 +200,8 @@ def report(root: Path, runs: list[Run], out: Path, study_file: str | Path = "") 
     copied: dict[str, list[Path]] = {"reuse": [], "learn": []}
     for r in runs:
         run_dir = root / r.name
-        state = run_state(run_dir, wanted_frames(r))
         asked = wanted_frames(r)
+        state = run_state(run_dir, asked)
         rows.append(f"| `{r.name}` | {r.app} | {state} | {_frames(run_dir):,} ({asked if asked else 'its default'}) | {_last_eval(run_dir)} |")
         if not (run_dir / "train.csv").is_file():
             continue

@@ -263,7 +263,7 @@ class Trainer:
             raise ConfigError(f"demos.num={n} but {demos['path']} holds only {len(episodes)} demonstrations")
         if cfg.reward.get("use_action"):  # (s, a) rewards need the agent's own actions
             acts = meta.get("actions")
-            mode = cfg.env.control_mode or family.env_args(cfg.env.split).get("control_mode") or family.control_mode
+            mode = self._control_mode(cfg)
             if acts is None:
                 raise ConfigError(f"reward={cfg.reward.name} reads (s, a), but {demos['path']} holds states only (planner "
                                   "demonstrations, or recorded before actions were kept); record demonstrations with "
@@ -300,6 +300,10 @@ class Trainer:
             raise ConfigError(f"init_from={run_dir}: cannot fine-tune from {file}: " + "; ".join(problems))
         self.init_from = str(file)
 
+    def _control_mode(self, cfg) -> str:
+        """The controller this run's agent acts with (env.control_mode, else its split's, else the family's)."""
+        return cfg.env.control_mode or self.family.env_args(cfg.env.split).get("control_mode") or self.family.control_mode
+
     def _demo_transitions(self, cfg, demos):
         """RLPD-style share of demonstrations in every SAC batch (``demos.sac_share``): a replay buffer of
         the demonstrations' transitions, whose rewards the learned reward recomputes at sampling like
@@ -317,7 +321,7 @@ class Trainer:
                               "the states they were taken in (drs-demos --from-policy records them)")
         have, want = int(demos[0]["action"].shape[-1]), int(self.env.action_spec.shape[-1])
         if have != want:
-            mode = cfg.env.control_mode or self.family.env_args(cfg.env.split).get("control_mode") or self.family.control_mode
+            mode = self._control_mode(cfg)
             raise ConfigError(f"demos.sac_share: the actions in {cfg.demos.path} are {have}-dimensional; this run acts with "
                               f"{want}-dimensional {mode} commands. Record the demonstrations in the agent's controller "
                               f"(drs-demos --control-mode {mode}, the default, or drs-demos --from-policy), or set demos.sac_share=0")
