@@ -16,38 +16,64 @@ import time
 import torch
 from hydra import compose, initialize_config_dir
 
+from drs_torchrl.precision import autocast
 from drs_torchrl.trainers.apps import conf_dir
 from drs_torchrl.trainers.loop import Trainer
 
 UNFUSED = ["algo.optim.fused=false", "reward.disc.fused=false"]
+WHOLE = "<compile the whole update>"  # not a config option: loss, backward, Adam steps and target update in one torch.compile
 COMPARISONS = {
     "levers": {
-        "fp32, per-parameter Adam (before)": [*UNFUSED],
-        "fp32, fused Adam (default)": [],
-        "fp32, fused Adam, no vmap": ["+algo.loss.deactivate_vmap=true"],
-        "fp32, fused Adam, compiled loss": ["algo.compile=true"],
-        "bf16 autocast, fused Adam": ["algo.precision=bf16"],
+        "fp32, twin critics vmapped (before)": ["algo.precision=fp32", "algo.loss.deactivate_vmap=false"],
+        "fp32, critics one after the other": ["algo.precision=fp32"],
+        "bf16 autocast (auto where native)": ["algo.precision=bf16"],
+        "bf16 autocast, compiled loss": ["algo.precision=bf16", "algo.compile=true"],
+        "bf16 autocast, compiled whole update": ["algo.precision=bf16", WHOLE],
     },
     "precision": {"fp32": ["algo.precision=fp32"], "bf16": ["algo.precision=bf16"]},
-    "vmap": {"vmap": [], "novmap": ["+algo.loss.deactivate_vmap=true"]},
+    "vmap": {"vmap": ["algo.precision=fp32", "algo.loss.deactivate_vmap=false"], "novmap": ["algo.precision=fp32"]},
     "adam": {"loop": [*UNFUSED, "+algo.optim.foreach=false"], "foreach": [*UNFUSED, "+algo.optim.foreach=true"], "fused": []},
 }
 
 
 def trainer(algo, extra):
+    whole = WHOLE in extra
+    extra = [x for x in extra if x != WHOLE]
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
         cfg = compose("learn", overrides=[f"algo={algo}", "total_frames=1024", "algo.learning_starts=100000", "eval.episodes=0",
                                           "logger.progress_bar=false", "logger.tensorboard=false",
                                           "+env.variant_overrides.goal_thresh=0.08",  # every discriminator has data
+                                          "algo.collector._target_=torchrl.collectors.Collector",
                                           "checkpoint_interval=1000000000", *extra])
     d = tempfile.mkdtemp()
     Trainer(cfg, "learn", d).run()  # 1024 real PickCube transitions
-    return Trainer(cfg, "learn", d, resume=True)
+    tr = Trainer(cfg, "learn", d, resume=True)
+    tr.sac_update = compiled_whole_update(tr) if whole else tr._sac_step
+    return tr
+
+
+def compiled_whole_update(tr):
+    """The trainer's SAC step (same loss, optimisers and target updater) with everything after the
+    sampling inside one ``torch.compile``: the route the issue suggests beyond compiling the loss."""
+    opts = (tr.optim_actor, tr.optim_critic, tr.optim_alpha)
+
+    def step(sample):
+        with autocast(tr.precision, tr.device):
+            out = tr.loss(sample)
+        (out["loss_actor"] + out["loss_qvalue"] + out["loss_alpha"]).backward()
+        for opt in opts:
+            opt.step()
+            opt.zero_grad(set_to_none=True)
+        tr.target_updater.step()
+        return out.detach()
+
+    compiled = torch.compile(step)
+    return lambda: compiled(tr.sac_batch())
 
 
 def update(tr):
     tr.learner.update()
-    tr._sac_step()
+    tr.sac_update()
 
 
 def main():

@@ -4,6 +4,7 @@ from pathlib import Path
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
 from torchrl.modules import MLP
 
 from drs_torchrl.precision import OutputFloat32, PrecisionError, native_bf16, resolve_precision
@@ -108,3 +109,18 @@ def test_bad_precision_override_is_a_config_error(tmp_path):
     with pytest.raises(PrecisionError, match="needs a CUDA device"):
         _trainer(tmp_path, "fp16")
     assert not (tmp_path / "config.yaml").exists()  # nothing written for a run that cannot start
+
+
+@pytest.mark.sim
+def test_default_learner_is_bf16_exactly_where_native_with_the_critics_one_after_the_other(tmp_path):
+    with initialize_config_dir(config_dir=conf_dir(), version_base=None):
+        cfg = compose("learn", overrides=TINY)
+    assert cfg.algo.precision == "auto"
+    tr = Trainer(cfg, "learn", tmp_path)
+    try:
+        assert tr.precision == ("bf16" if native_bf16("cpu") else "fp32")
+        assert tr.loss.deactivate_vmap  # autocast reaches every critic; faster than vmap here in fp32 too
+        saved = OmegaConf.load(tmp_path / "config.yaml")
+        assert saved.algo.precision == tr.precision  # resolved: a resume elsewhere keeps the run's precision
+    finally:
+        tr.close()

@@ -111,8 +111,9 @@ def _fake_run(d: Path, reward: str, seed: int, success: list[float], frames: int
 def test_report_copies_the_record_and_compares_by_run_name(tmp_path, capsys):
     from drs_torchrl.study import group_name, main
 
-    assert [group_name(n) for n in ("drs_s0", "one_stage_s12", "seed-1", "precision-bf16_seed-1", "dense-train_s0")] == \
-        ["drs", "one_stage", "seed-1", "precision-bf16", "dense-train"]
+    assert [group_name(n) for n in ("drs_s0", "one_stage_s12", "seed-1", "precision-bf16_seed-1", "dense-train_s0",
+                                    "seed-0_precision-fp32", "a-1_seed-2_b-3")] == \
+        ["drs", "one_stage", "seed-1", "precision-bf16", "dense-train", "precision-fp32", "a-1_b-3"]
     root = tmp_path / "runs"
     study = write(tmp_path, {"root": str(root), "app": "reuse", "common": ["total_frames=3000"], "runs": [
         {"name": "learn_s0", "app": "learn", "args": []},

@@ -157,8 +157,11 @@ RECORD_FILES = ("train.csv", "eval.csv", "config.yaml", "summary.json")
 
 
 def group_name(run_name: str) -> str:
-    """A run's name without its seed: ``drs_s0`` / ``seed-1`` suffixes name the seed, not the method."""
-    return re.sub(r"[_-](s|seed-)\d+$", "", run_name) or run_name
+    """A run's name without its seed: ``drs_s0`` / ``seed-1`` suffixes, and a grid's ``seed-1`` part
+    anywhere (``seed-0_precision-bf16``), name the seed, not the method."""
+    name = re.sub(r"[_-](s|seed-)\d+$", "", run_name)
+    name = "_".join(part for part in name.split("_") if not re.fullmatch(r"seed-\d+", part))
+    return name or run_name
 
 
 def _copy_record(src: Path, dst: Path) -> None:

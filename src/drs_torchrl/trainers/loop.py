@@ -169,6 +169,8 @@ class Trainer:
         self.device = torch.device("cuda" if cfg.device == "auto" and torch.cuda.is_available() else ("cpu" if cfg.device == "auto" else cfg.device))
         # algo.precision: autocast of the learner's forward passes, fp32 master weights (drs_torchrl.precision)
         self.precision = resolve_precision(str(cfg.algo.get("precision") or "fp32"), self.device)
+        if cfg.algo.get("precision") == "auto":  # saved resolved: a resume on another machine keeps this run's numerics
+            cfg.algo.precision = self.precision
         self._grad_scaler = grad_scaler(self.precision, self.device)
         self.family = family = family_from_config(cfg.env)
         self.num_stages = family.num_stages
