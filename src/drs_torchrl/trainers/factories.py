@@ -69,9 +69,9 @@ def make_loss_module(cfg: DictConfig, actor, qvalue, action_spec, device: torch.
     TD(0) value estimator at ``algo.gamma``, and the ``algo.target_update`` updater."""
     a = cfg.algo
     kwargs = {}
-    if precision != "fp32" and "deactivate_vmap" not in a.loss:
+    if precision != "fp32":
         # torch.autocast does not reach inside torch.vmap (the twin critics' batched pass would stay
-        # fp32): in low precision the critics are evaluated one after the other
+        # fp32): in low precision the critics are evaluated one after the other, whatever algo.loss says
         kwargs["deactivate_vmap"] = True
     loss = instantiate(a.loss)(actor_network=actor, qvalue_network=qvalue, action_spec=action_spec, **kwargs)
     loss.to(device)
