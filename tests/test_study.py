@@ -142,3 +142,48 @@ def test_report_copies_the_record_and_compares_by_run_name(tmp_path, capsys):
     # a report into the run root would mix the record with the runs
     assert main([str(study), "--report", str(root / "r")]) == 2
     assert "inside the study's run root" in capsys.readouterr().err
+
+
+def test_a_fresh_checkout_skips_what_its_record_holds_and_reuses_its_rewards(tmp_path, capsys):
+    """Training states are not committed: a run whose directory is gone but whose committed record says
+    it finished is ``recorded`` (skipped, satisfies ``needs``), ``<reward:NAME>`` falls back to the
+    record's reward.pt, and a report keeps the record instead of calling the run new."""
+    from drs_torchrl.study import load_record, main, resolve_args, study_state
+
+    root, out = tmp_path / "runs", tmp_path / "results"
+    study = write(tmp_path, {"root": str(root), "app": "reuse", "record": str(out), "common": ["total_frames=3000"],
+                             "runs": [{"name": "learn_s0", "app": "learn", "args": []},
+                                      {"name": "drs_s0", "args": ["reward.checkpoint=<reward:learn_s0>"], "needs": ["learn_s0"]},
+                                      {"name": "sparse_s0", "args": []}, {"name": "dense_s0", "args": []}]})
+    _, runs = load_study(study)
+    record = load_record(study)
+    assert record == out
+    by = {r.name: r for r in runs}
+    assert resolve_args(by["drs_s0"], root, record) == ["total_frames=3000", f"reward.checkpoint={root}/learn_s0/checkpoints/reward.pt"]
+    for name, frames in (("learn_s0", 3000), ("sparse_s0", 2000)):   # sparse_s0 was interrupted, its state lost
+        _fake_run(root / name, "drs" if name == "learn_s0" else "sparse", 0, [0.0, 0.5, 1.0][: frames // 1000], 3000,
+                  app="learn" if name == "learn_s0" else "reuse")
+        (root / name / "summary.json").write_text(json.dumps({"frames": frames, "interrupted": frames < 3000}))
+    assert main([str(study), "--report", str(out)]) == 0
+    import shutil
+    shutil.rmtree(root)   # the next session's fresh checkout: the records only
+    assert [study_state(root, record, by[n]) for n in ("learn_s0", "drs_s0", "sparse_s0", "dense_s0")] == \
+        ["recorded", "new", "new", "new"]
+    assert resolve_args(by["drs_s0"], root, record)[-1] == f"reward.checkpoint={out}/run_files/learn_s0/reward.pt"
+    # the record is re-read, not overwritten: learn_s0 stays in the record and in the comparison
+    assert main([str(study), "--report", str(out)]) == 0
+    status = (out / "status.md").read_text()
+    assert "| `learn_s0` | learn | recorded | 3,000 (3000) | 1.00 at 3000 |" in status
+    assert "| `sparse_s0` | reuse | new (an unfinished earlier record) | 2,000 (3000) | 0.50 at 2000 |" in status
+    assert "| `dense_s0` | reuse | new | 0 (3000) | - |" in status
+    assert (out / "run_files" / "learn_s0" / "reward.pt").read_bytes() == b"reward"
+    assert "| sparse | 1 (0) |" in (out / "compare.md").read_text()
+    capsys.readouterr()
+    assert main([str(study), "--status"]) == 0
+    assert "  recorded  " in capsys.readouterr().out
+
+
+def test_a_reward_reference_must_be_among_the_runs_needs(tmp_path):
+    with pytest.raises(StudyError, match="does not list learn in its needs"):
+        load_study(write(tmp_path, {"root": "r", "runs": [{"name": "learn"},
+                                                          {"name": "a", "args": ["reward.checkpoint=<reward:learn>"]}]}))

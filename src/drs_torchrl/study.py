@@ -15,7 +15,17 @@ Study file::
     common: [env=turn_valve, total_frames=120000, eval.episodes=10]
     grid: {algo.precision: [fp32, bf16], seed: [0, 1]}     # run names like precision-bf16_seed-1
     runs:                                # optional extra runs; needs: runs that must finish first
-      - {name: reuse-drs-s0, app: reuse, args: [reward=drs, reward.checkpoint=<root>/learn-s0/checkpoints/reward.pt], needs: [learn-s0]}
+      - {name: reuse-drs-s0, app: reuse, args: [reward=drs, reward.checkpoint=<reward:learn-s0>], needs: [learn-s0]}
+    record: results/precision            # optional: the folder --report writes (see below)
+
+``<root>`` in an argument is the run root; ``<reward:NAME>`` is phase-1 run NAME's reward checkpoint
+(``<root>/NAME/checkpoints/reward.pt``, or the committed ``<record>/run_files/NAME/reward.pt`` when the
+run directory is gone).
+
+Run directories hold training states, which are not committed; a study that spans machines or fresh
+checkouts names its ``record``: a run whose directory is absent but whose committed record there
+(``run_files/NAME/summary.json``) says it finished is ``recorded``, skipped like a finished run, and
+satisfies ``needs``.
 
 A run is finished when its ``summary.json`` says it was not interrupted and it reached its
 ``total_frames`` (its own, or the study file's if that is larger: raising it there extends finished
@@ -60,6 +70,10 @@ class Run:
     needs: list[str] = field(default_factory=list)
 
 
+DONE = ("finished", "recorded")
+_REWARD_REF = re.compile(r"<reward:([^>]+)>")
+
+
 def _short(key: str) -> str:
     return key.split(".")[-1]
 
@@ -80,9 +94,10 @@ def load_study(path: str | Path) -> tuple[Path, list[Run]]:
         raise StudyError(f"{path} is not a YAML study file ({type(exc).__name__})") from None
     if not isinstance(spec, dict) or "root" not in spec:
         raise StudyError(f"{path}: a study file is a mapping with at least 'root' and 'grid' or 'runs'")
-    unknown = set(spec) - {"root", "app", "common", "grid", "runs", "description"}
+    allowed = ("root", "app", "common", "grid", "runs", "description", "record")
+    unknown = set(spec) - set(allowed)
     if unknown:
-        raise StudyError(f"{path}: unknown keys {sorted(unknown)} (allowed: root, app, common, grid, runs, description)")
+        raise StudyError(f"{path}: unknown keys {sorted(unknown)} (allowed: {', '.join(allowed)})")
     root = Path(spec["root"])
     app = spec.get("app", "learn")
     common = [str(a) for a in spec.get("common") or []]
@@ -110,7 +125,36 @@ def load_study(path: str | Path) -> tuple[Path, list[Run]]:
         missing = [n for n in r.needs if n not in names]
         if missing:
             raise StudyError(f"{path}: run {r.name} needs {missing}, which the study does not define")
+        for ref in (m for a in r.args for m in _REWARD_REF.findall(a)):
+            if ref not in r.needs:
+                raise StudyError(f"{path}: run {r.name} uses <reward:{ref}> but does not list {ref} in its needs")
     return root, runs
+
+
+def load_record(path: str | Path) -> Path | None:
+    """The study file's ``record`` folder, or None."""
+    spec = yaml.safe_load(Path(path).read_text()) or {}
+    return Path(spec["record"]) if spec.get("record") else None
+
+
+def study_state(root: Path, record: Path | None, run: Run) -> str:
+    """:func:`run_state` of the run's directory; where there is none, ``recorded`` if the committed
+    record says the run finished (its state is gone: a fresh checkout), else ``new``."""
+    state = run_state(root / run.name, wanted_frames(run))
+    if state == "new" and record is not None and run_state(record / "run_files" / run.name, wanted_frames(run)) == "finished":
+        return "recorded"
+    return state
+
+
+def resolve_args(run: Run, root: Path, record: Path | None) -> list[str]:
+    """The run's arguments with ``<reward:NAME>`` replaced by NAME's reward checkpoint: its run
+    directory's, else the record's."""
+    def where(m: re.Match) -> str:
+        live = root / m.group(1) / "checkpoints" / "reward.pt"
+        kept = record / "run_files" / m.group(1) / "reward.pt" if record is not None else None
+        return str(kept if not live.is_file() and kept is not None and kept.is_file() else live)
+
+    return [_REWARD_REF.sub(where, a) for a in run.args]
 
 
 def wanted_frames(run: Run) -> int | None:
@@ -144,13 +188,14 @@ def run_state(run_dir: Path, want_frames: int | None = None) -> str:
     return "broken" if run_dir.exists() else "new"
 
 
-def command(run: Run, run_dir: Path, state: str) -> list[str]:
+def command(run: Run, run_dir: Path, state: str, args: list[str] | None = None) -> list[str]:
     exe = str(Path(sys.executable).parent / f"drs-{run.app}")
+    args = run.args if args is None else args
     if state == "resumable":
         # overrides that only extend (e.g. a larger total_frames) are honoured on resume
-        extend = [a for a in run.args if a.split("=", 1)[0] in ("total_frames",)]
+        extend = [a for a in args if a.split("=", 1)[0] in ("total_frames",)]
         return [exe, f"resume={run_dir}", *extend]
-    return [exe, *run.args, f"hydra.run.dir={run_dir}"]
+    return [exe, *args, f"hydra.run.dir={run_dir}"]
 
 
 RECORD_FILES = ("train.csv", "eval.csv", "config.yaml", "summary.json")
@@ -192,8 +237,12 @@ def _frames(run_dir: Path) -> int:
         return 0
 
 
-def report(root: Path, runs: list[Run], out: Path, study_file: str | Path = "") -> dict[str, Path]:
-    """Copy each run's record into ``out/run_files``, write ``out/status.md`` and the comparisons."""
+def report(root: Path, runs: list[Run], out: Path, study_file: str | Path = "",
+           record: Path | None = None) -> dict[str, Path]:
+    """Copy each run's record into ``out/run_files``, write ``out/status.md`` and the comparisons.
+
+    A run with no directory under ``root`` keeps the record ``out`` (or the study's ``record``) already
+    holds, so a report from a fresh checkout neither loses nor misstates what earlier sessions ran."""
     from drs_torchrl.comparison import CompareError, compare
 
     out = Path(out)
@@ -202,19 +251,22 @@ def report(root: Path, runs: list[Run], out: Path, study_file: str | Path = "") 
     rows = ["| run | app | state | env steps (asked) | last evaluation: success at step |", "|---|---|---|---|---|"]
     copied: dict[str, list[Path]] = {"reuse": [], "learn": []}
     for r in runs:
-        run_dir = root / r.name
+        run_dir, dst = root / r.name, files / r.name
         asked = wanted_frames(r)
-        state = run_state(run_dir, asked)
-        rows.append(f"| `{r.name}` | {r.app} | {state} | {_frames(run_dir):,} ({asked if asked else 'its default'}) | {_last_eval(run_dir)} |")
-        if not (run_dir / "train.csv").is_file():
-            continue
-        dst = files / r.name
-        dst.mkdir(exist_ok=True)
-        for name in RECORD_FILES:
-            if (run_dir / name).is_file():
-                _copy_record(run_dir / name, dst / name)
-        if r.app == "learn" and (run_dir / "checkpoints" / "reward.pt").is_file():
-            shutil.copy2(run_dir / "checkpoints" / "reward.pt", dst / "reward.pt")
+        state = study_state(root, record, r)
+        if (run_dir / "train.csv").is_file():
+            dst.mkdir(exist_ok=True)
+            for name in RECORD_FILES:
+                if (run_dir / name).is_file():
+                    _copy_record(run_dir / name, dst / name)
+            if r.app == "learn" and (run_dir / "checkpoints" / "reward.pt").is_file():
+                shutil.copy2(run_dir / "checkpoints" / "reward.pt", dst / "reward.pt")
+        elif state == "recorded" and (record / "run_files" / r.name).resolve() != dst.resolve():
+            shutil.copytree(record / "run_files" / r.name, dst, dirs_exist_ok=True)
+        shown = run_dir if (run_dir / "train.csv").is_file() else dst
+        if state == "new" and (dst / "train.csv").is_file():
+            state = "new (an unfinished earlier record)"  # its training state is gone: it starts again
+        rows.append(f"| `{r.name}` | {r.app} | {state} | {_frames(shown):,} ({asked if asked else 'its default'}) | {_last_eval(shown)} |")
         if (dst / "config.yaml").is_file():
             copied[r.app].append(dst)
     paths = {"status": out / "status.md"}
@@ -243,6 +295,8 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     try:
         root, runs = load_study(a.study)
+        record = load_record(a.study)
+        every = list(runs)  # --only narrows what runs, not what counts as done
     except StudyError as exc:
         print(f"drs-study: error: {exc}", file=sys.stderr)
         return 2
@@ -253,13 +307,13 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         runs = [r for r in runs if r.name in a.only]
     want = {r.name: wanted_frames(r) for r in runs}
-    states = {r.name: run_state(root / r.name, want[r.name]) for r in runs}
+    states = {r.name: study_state(root, record, r) for r in runs}
     if a.report is not None:
         if a.report.resolve() == root.resolve() or root.resolve() in a.report.resolve().parents:
             print(f"drs-study: error: --report {a.report} is inside the study's run root {root}: give a results folder",
                   file=sys.stderr)
             return 2
-        for path in report(root, runs, a.report, a.study).values():
+        for path in report(root, runs, a.report, a.study, record).values():
             print(path)
         return 0
     if a.status:
@@ -267,10 +321,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{states[r.name]:>10}  {root / r.name}")
         return 0
     (root / "logs").mkdir(parents=True, exist_ok=True)
-    pending = [r for r in runs if states[r.name] != "finished"]
+    pending = [r for r in runs if states[r.name] not in DONE]
     for r in runs:
-        if states[r.name] == "finished":
-            print(f"drs-study: {r.name}: finished, skipped", flush=True)
+        if states[r.name] in DONE:
+            print(f"drs-study: {r.name}: {states[r.name]}, skipped", flush=True)
     active: dict[str, subprocess.Popen] = {}
     failed: list[str] = []
     stop = {"sig": None}
@@ -291,7 +345,7 @@ def main(argv: list[str] | None = None) -> int:
                     print(f"drs-study: {name}: exit {proc.returncode}, {state}", flush=True)
                     if state != "finished":
                         failed.append(name)
-            done = {n for n, s in ((r.name, run_state(root / r.name, want[r.name])) for r in runs) if s == "finished"}
+            done = {r.name for r in every if study_state(root, record, r) in DONE}
             for r in list(pending):
                 if len(active) >= a.jobs:
                     break
@@ -306,7 +360,7 @@ def main(argv: list[str] | None = None) -> int:
                 state = run_state(run_dir, want[r.name])
                 if state == "broken":  # started but never reached a checkpoint: nothing to keep
                     shutil.rmtree(run_dir)
-                cmd = command(r, run_dir, state)
+                cmd = command(r, run_dir, state, resolve_args(r, root, record))
                 if state != "resumable" and not any(c.startswith("torch_threads=") for c in cmd):
                     cmd.append(f"torch_threads={a.threads}")  # a resumed run keeps its own
                 log = open(root / "logs" / f"{r.name}.log", "a")
