@@ -106,6 +106,7 @@ def _fake_run(d: Path, reward: str, seed: int, success: list[float], frames: int
     (d / "train.csv").write_text("step,success_rate,reach_stage_1\n" + "".join(f"{s},{y},{y}\n" for s, y in zip(steps, success)))
     if app == "learn":
         (d / "checkpoints" / "reward.pt").write_bytes(b"reward")
+        (d / "checkpoints" / "policy.pt").write_bytes(b"policy")
 
 
 def test_report_copies_the_record_and_compares_by_run_name(tmp_path, capsys):
@@ -153,13 +154,15 @@ def test_a_fresh_checkout_skips_what_its_record_holds_and_reuses_its_rewards(tmp
     root, out = tmp_path / "runs", tmp_path / "results"
     study = write(tmp_path, {"root": str(root), "app": "reuse", "record": str(out), "common": ["total_frames=3000"],
                              "runs": [{"name": "learn_s0", "app": "learn", "args": []},
-                                      {"name": "drs_s0", "args": ["reward.checkpoint=<reward:learn_s0>"], "needs": ["learn_s0"]},
+                                      {"name": "drs_s0", "args": ["reward.checkpoint=<reward:learn_s0>", "init_from=<policy:learn_s0>"],
+                                       "needs": ["learn_s0"]},
                                       {"name": "sparse_s0", "args": []}, {"name": "dense_s0", "args": []}]})
     _, runs = load_study(study)
     record = load_record(study)
     assert record == out
     by = {r.name: r for r in runs}
-    assert resolve_args(by["drs_s0"], root, record) == ["total_frames=3000", f"reward.checkpoint={root}/learn_s0/checkpoints/reward.pt"]
+    assert resolve_args(by["drs_s0"], root, record) == ["total_frames=3000", f"reward.checkpoint={root}/learn_s0/checkpoints/reward.pt",
+                                                        f"init_from={root}/learn_s0/checkpoints/policy.pt"]
     for name, frames in (("learn_s0", 3000), ("sparse_s0", 2000)):   # sparse_s0 was interrupted, its state lost
         _fake_run(root / name, "drs" if name == "learn_s0" else "sparse", 0, [0.0, 0.5, 1.0][: frames // 1000], 3000,
                   app="learn" if name == "learn_s0" else "reuse")
@@ -169,7 +172,8 @@ def test_a_fresh_checkout_skips_what_its_record_holds_and_reuses_its_rewards(tmp
     shutil.rmtree(root)   # the next session's fresh checkout: the records only
     assert [study_state(root, record, by[n]) for n in ("learn_s0", "drs_s0", "sparse_s0", "dense_s0")] == \
         ["recorded", "new", "new", "new"]
-    assert resolve_args(by["drs_s0"], root, record)[-1] == f"reward.checkpoint={out}/run_files/learn_s0/reward.pt"
+    assert resolve_args(by["drs_s0"], root, record)[1:] == [f"reward.checkpoint={out}/run_files/learn_s0/reward.pt",
+                                                            f"init_from={out}/run_files/learn_s0/policy.pt"]
     # the record is re-read, not overwritten: learn_s0 stays in the record and in the comparison
     assert main([str(study), "--report", str(out)]) == 0
     status = (out / "status.md").read_text()
@@ -177,6 +181,7 @@ def test_a_fresh_checkout_skips_what_its_record_holds_and_reuses_its_rewards(tmp
     assert "| `sparse_s0` | reuse | new (an unfinished earlier record) | 2,000 (3000) | 0.50 at 2000 |" in status
     assert "| `dense_s0` | reuse | new | 0 (3000) | - |" in status
     assert (out / "run_files" / "learn_s0" / "reward.pt").read_bytes() == b"reward"
+    assert (out / "run_files" / "learn_s0" / "policy.pt").read_bytes() == b"policy"
     assert "| sparse | 1 (0) |" in (out / "compare.md").read_text()
     capsys.readouterr()
     assert main([str(study), "--status"]) == 0
@@ -187,3 +192,5 @@ def test_a_reward_reference_must_be_among_the_runs_needs(tmp_path):
     with pytest.raises(StudyError, match="does not list learn in its needs"):
         load_study(write(tmp_path, {"root": "r", "runs": [{"name": "learn"},
                                                           {"name": "a", "args": ["reward.checkpoint=<reward:learn>"]}]}))
+    with pytest.raises(StudyError, match="<policy:learn> but does not list"):
+        load_study(write(tmp_path, {"root": "r", "runs": [{"name": "learn"}, {"name": "a", "args": ["init_from=<policy:learn>"]}]}))

@@ -18,9 +18,10 @@ Study file::
       - {name: reuse-drs-s0, app: reuse, args: [reward=drs, reward.checkpoint=<reward:learn-s0>], needs: [learn-s0]}
     record: results/precision            # optional: the folder --report writes (see below)
 
-``<root>`` in an argument is the run root; ``<reward:NAME>`` is phase-1 run NAME's reward checkpoint
-(``<root>/NAME/checkpoints/reward.pt``, or the committed ``<record>/run_files/NAME/reward.pt`` when the
-run directory is gone).
+``<root>`` in an argument is the run root; ``<reward:NAME>`` and ``<policy:NAME>`` are phase-1 run NAME's
+reward and policy checkpoints (``<root>/NAME/checkpoints/reward.pt``, or the committed
+``<record>/run_files/NAME/reward.pt`` when the run directory is gone; ``policy.pt`` alike, for
+``init_from=``, fine-tuning).
 
 Run directories hold training states, which are not committed; a study that spans machines or fresh
 checkouts names its ``record``: a run whose directory is absent but whose committed record there
@@ -35,7 +36,7 @@ saves its training state) and the study exits 130/143; re-invoke it to continue.
 
 ``--report OUT`` reads the run directories only (finished, interrupted or still running) and writes
 what a results folder commits, never training states: ``OUT/run_files/<run>/`` (``train.csv``,
-``eval.csv``, ``config.yaml``, ``summary.json``; a phase-1 run's ``reward.pt`` too), ``OUT/status.md``
+``eval.csv``, ``config.yaml``, ``summary.json``; a phase-1 run's ``reward.pt`` and ``policy.pt`` too), ``OUT/status.md``
 (each run's state, env steps and last evaluation), and ``drs-compare`` of the phase-2 runs into ``OUT/``
 and of the phase-1 runs into ``OUT/learn/``, grouped by run name without its seed (``drs_s0``,
 ``drs_s1`` -> ``drs``).
@@ -71,7 +72,7 @@ class Run:
 
 
 DONE = ("finished", "recorded")
-_REWARD_REF = re.compile(r"<reward:([^>]+)>")
+_CHECKPOINT_REF = re.compile(r"<(reward|policy):([^>]+)>")
 
 
 def _short(key: str) -> str:
@@ -125,9 +126,9 @@ def load_study(path: str | Path) -> tuple[Path, list[Run]]:
         missing = [n for n in r.needs if n not in names]
         if missing:
             raise StudyError(f"{path}: run {r.name} needs {missing}, which the study does not define")
-        for ref in (m for a in r.args for m in _REWARD_REF.findall(a)):
+        for kind, ref in (m for a in r.args for m in _CHECKPOINT_REF.findall(a)):
             if ref not in r.needs:
-                raise StudyError(f"{path}: run {r.name} uses <reward:{ref}> but does not list {ref} in its needs")
+                raise StudyError(f"{path}: run {r.name} uses <{kind}:{ref}> but does not list {ref} in its needs")
     return root, runs
 
 
@@ -147,14 +148,15 @@ def study_state(root: Path, record: Path | None, run: Run) -> str:
 
 
 def resolve_args(run: Run, root: Path, record: Path | None) -> list[str]:
-    """The run's arguments with ``<reward:NAME>`` replaced by NAME's reward checkpoint: its run
-    directory's, else the record's."""
+    """The run's arguments with ``<reward:NAME>`` / ``<policy:NAME>`` replaced by NAME's checkpoint:
+    its run directory's, else the record's."""
     def where(m: re.Match) -> str:
-        live = root / m.group(1) / "checkpoints" / "reward.pt"
-        kept = record / "run_files" / m.group(1) / "reward.pt" if record is not None else None
+        file = f"{m.group(1)}.pt"
+        live = root / m.group(2) / "checkpoints" / file
+        kept = record / "run_files" / m.group(2) / file if record is not None else None
         return str(kept if not live.is_file() and kept is not None and kept.is_file() else live)
 
-    return [_REWARD_REF.sub(where, a) for a in run.args]
+    return [_CHECKPOINT_REF.sub(where, a) for a in run.args]
 
 
 def wanted_frames(run: Run) -> int | None:
@@ -259,8 +261,9 @@ def report(root: Path, runs: list[Run], out: Path, study_file: str | Path = "",
             for name in RECORD_FILES:
                 if (run_dir / name).is_file():
                     _copy_record(run_dir / name, dst / name)
-            if r.app == "learn" and (run_dir / "checkpoints" / "reward.pt").is_file():
-                shutil.copy2(run_dir / "checkpoints" / "reward.pt", dst / "reward.pt")
+            for name in ("reward.pt", "policy.pt") if r.app == "learn" else ():  # for reuse and fine-tuning later
+                if (run_dir / "checkpoints" / name).is_file():
+                    shutil.copy2(run_dir / "checkpoints" / name, dst / name)
         elif state == "recorded" and (record / "run_files" / r.name).resolve() != dst.resolve():
             shutil.copytree(record / "run_files" / r.name, dst, dirs_exist_ok=True)
         shown = run_dir if (run_dir / "train.csv").is_file() else dst
