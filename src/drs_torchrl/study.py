@@ -34,7 +34,8 @@ runs). SIGINT/SIGTERM to the study stop every run at its next batch boundary (ea
 saves its training state) and the study exits 130/143; re-invoke it to continue.
 (Hydra's multirun launchers start every job afresh and know neither resuming nor skipping.)
 
-``--report OUT`` reads the run directories only (finished, interrupted or still running) and writes
+``--report OUT`` reads the run directories (finished, interrupted or still running; a run without one
+keeps the record OUT already holds) and writes
 what a results folder commits, never training states: ``OUT/run_files/<run>/`` (``train.csv``,
 ``eval.csv``, ``config.yaml``, ``summary.json``; a phase-1 run's ``reward.pt`` and ``policy.pt`` too), ``OUT/status.md``
 (each run's state, env steps and last evaluation), and ``drs-compare`` of the phase-2 runs into ``OUT/``
@@ -339,6 +340,7 @@ def main(argv: list[str] | None = None) -> int:
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     env = dict(os.environ, OMP_NUM_THREADS=str(a.threads), MKL_NUM_THREADS=str(a.threads))
+    done = {r.name for r in every if study_state(root, record, r) in DONE}  # only this loop's runs change it
     try:
         while (pending or active) and stop["sig"] is None:
             for name, proc in list(active.items()):
@@ -346,9 +348,10 @@ def main(argv: list[str] | None = None) -> int:
                     del active[name]
                     state = run_state(root / name, want[name])
                     print(f"drs-study: {name}: exit {proc.returncode}, {state}", flush=True)
-                    if state != "finished":
+                    if state == "finished":
+                        done.add(name)
+                    else:
                         failed.append(name)
-            done = {r.name for r in every if study_state(root, record, r) in DONE}
             for r in list(pending):
                 if len(active) >= a.jobs:
                     break
