@@ -7,6 +7,7 @@ a set of config overrides on a phase-1 PickCube trainer holding 1024 real transi
     .venv/bin/python bin/ab_sac_update.py --threads 1 --compare vmap       # deactivate_vmap on/off
     .venv/bin/python bin/ab_sac_update.py --threads 1 --compare adam       # for-loop / foreach / fused Adam
     .venv/bin/python bin/ab_sac_update.py --algo sac_paper --compare precision
+    .venv/bin/python bin/ab_sac_update.py --threads 1 --compare utd        # fewer, larger updates: learner ms per env step
 """
 import argparse
 import json
@@ -32,6 +33,20 @@ COMPARISONS = {
     },
     "precision": {"fp32": ["algo.precision=fp32"], "bf16": ["algo.precision=bf16"]},
     "vmap": {"vmap": ["algo.precision=fp32", "algo.loss.deactivate_vmap=false"], "novmap": ["algo.precision=fp32"]},
+    # fewer, larger updates (issue 12): same gradient samples per env step (batch x UTD), the discriminators'
+    # updates per env step kept by doubling their updates per SAC update; compare ms per env step
+    "utd": {
+        "fp32, batch 256, UTD 0.5": ["algo.precision=fp32", "algo.batch_size=256", "algo.utd=0.5"],
+        "bf16, batch 256, UTD 0.5": ["algo.precision=bf16", "algo.batch_size=256", "algo.utd=0.5"],
+        "bf16, batch 512, UTD 0.25": ["algo.precision=bf16", "algo.batch_size=512", "algo.utd=0.25",
+                                      "reward.disc.updates_per_sac_update=2"],
+        "fp32, batch 1024, UTD 0.5": ["algo.precision=fp32", "algo.batch_size=1024", "algo.utd=0.5"],
+        "bf16, batch 1024, UTD 0.5": ["algo.precision=bf16", "algo.batch_size=1024", "algo.utd=0.5"],
+        "bf16, batch 2048, UTD 0.25": ["algo.precision=bf16", "algo.batch_size=2048", "algo.utd=0.25",
+                                       "reward.disc.updates_per_sac_update=2"],
+        "bf16, batch 1024, UTD 0.25": ["algo.precision=bf16", "algo.batch_size=1024", "algo.utd=0.25",
+                                       "reward.disc.updates_per_sac_update=2"],
+    },
     "adam": {"loop": [*UNFUSED, "+algo.optim.foreach=false"], "foreach": [*UNFUSED, "+algo.optim.foreach=true"], "fused": []},
 }
 
@@ -99,8 +114,11 @@ def main():
             res[k].append((time.perf_counter() - t) / a.block * 1e3)
     out = []
     for k, v in res.items():
-        out.append({"variant": k, "overrides": COMPARISONS[a.compare][k], "ms_per_update_blocks": v, "ms_per_update_min": min(v)})
-        print(f"{a.algo} threads={a.threads} {k}: ms per update (disc + SAC) {['%.1f' % x for x in v]}, min {min(v):.1f}", flush=True)
+        utd = float(variants[k].cfg.algo.utd)
+        out.append({"variant": k, "overrides": COMPARISONS[a.compare][k], "ms_per_update_blocks": v, "ms_per_update_min": min(v),
+                    "utd": utd, "learner_ms_per_env_step": utd * min(v)})
+        print(f"{a.algo} threads={a.threads} {k}: ms per update (disc + SAC) {['%.1f' % x for x in v]}, min {min(v):.1f}; "
+              f"learner ms per env step (x UTD {utd:g}) {utd * min(v):.1f}", flush=True)
     if a.json:
         with open(a.json, "w") as f:
             json.dump({"algo": a.algo, "threads": a.threads, "compare": a.compare, "results": out}, f, indent=2)

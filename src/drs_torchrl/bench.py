@@ -92,7 +92,8 @@ def bench_collect(family, steps: int, collector: str = "inproc") -> float:
     return n / dt
 
 
-def bench_components(algo: str, sizes: list[int], batch_reps: int = 50, precisions: tuple[str, ...] = ("fp32",)) -> dict:
+def bench_components(algo: str, sizes: list[int], batch_reps: int = 50, precisions: tuple[str, ...] = ("fp32",),
+                     compile_too: bool = True) -> dict:
     """Per-call times of the learner's parts on real PickCube data (phase 1, ``algo``):
 
     * ``sac_update_ms``: one SAC update (replay sample, reward recomputation, SACLoss, backward,
@@ -161,6 +162,8 @@ def bench_components(algo: str, sizes: list[int], batch_reps: int = 50, precisio
             tr = Trainer(pcfg, "learn", d, resume=True)
             out["sac_update_ms_by_precision"][prec] = per_call_ms(tr._sac_step)
             tr.close()
+    if not compile_too:
+        return out
     cfg.algo.compile = True
     with tempfile.TemporaryDirectory() as d:
         try:
@@ -223,12 +226,15 @@ def roofline(res: dict) -> list[dict]:
     """
     cores = os.cpu_count() or 1
     raw = res["raw_sim_steps_per_s"]
-    plain = {q["batch_size"]: q["env_steps_per_s"] for q in res.get("plain", [])}
+    plain = {(q["batch_size"], q.get("utd", 0.5)): q["env_steps_per_s"] for q in res.get("plain", [])}
     dtypes = {"fp32": torch.float32, "bf16": torch.bfloat16}
     out = []
     for c in res.get("components", []):
         bs, width = c["batch_size"], c.get("width", 256)
-        utd = next((r["utd"] for r in res["learn"] if r["algo"] == c["algo"]), 0.5)
+        learn = next((r for r in res["learn"] if r["algo"] == c["algo"]), {})
+        utd = learn.get("utd", 0.5)
+        ref = learn.get("plain_reference", {"batch_size": bs, "utd": 0.5})  # the plain loop its rows are compared with
+        ref = (ref["batch_size"], ref["utd"])
         for prec, measured in (c.get("sac_update_ms_by_precision") or {"fp32": c["sac_update_ms"]}).items():
             g1 = gemm_gflops(bs, width, 1, dtype=dtypes[prec])
             gall = gemm_gflops(bs, width, cores, dtype=dtypes[prec])
@@ -238,9 +244,9 @@ def roofline(res: dict) -> list[dict]:
                    "gemm_gflops_1_thread": g1, f"gemm_gflops_{cores}_threads": gall, "cores": cores,
                    "update_ms_lower_bound_all_cores": c["sac_update_gflop"] / gall * 1e3,
                    "update_ms_measured": measured, "env_steps_per_s_bound": bound}
-            if bs in plain:
-                row["plain_env_steps_per_s"] = plain[bs]
-                row["bound_over_plain"] = bound / plain[bs]
+            if ref in plain:
+                row["plain_env_steps_per_s"] = plain[ref]
+                row["bound_over_plain"] = bound / plain[ref]
             out.append(row)
     return out
 
@@ -345,6 +351,20 @@ def bench_checkpoint(transitions: int) -> dict:
             "bytes_per_transition_replay_plus_stage": size / transitions}
 
 
+PAPER_UTD = 0.5  # the plain loop's reference UTD (the paper's)
+DISC_BATCH = 256  # discriminator batch per side in every config (reward.disc.batch_size)
+
+
+def parse_algo(spec: str, default_precisions) -> tuple[str, list[str]]:
+    """``sac_cpu:bf16`` -> ("sac_cpu", ["bf16"]); ``sac_paper`` -> ("sac_paper", the default precisions)."""
+    algo, _, precs = spec.partition(":")
+    chosen = [x for x in precs.split(",") if x] or list(default_precisions)
+    bad = [x for x in chosen if x not in ("fp32", "bf16")]
+    if bad:
+        raise SystemExit(f"drs-bench: error: {spec!r}: precisions must be fp32 or bf16, got {bad}")
+    return algo, chosen
+
+
 def main(argv: list[str] | None = None) -> int:
     from drs_torchrl.trainers.apps import conf_dir
 
@@ -353,7 +373,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--raw-steps", type=int, default=3000)
     p.add_argument("--collect-steps", type=int, default=3008)
     p.add_argument("--learn-frames", type=int, default=2048)
-    p.add_argument("--algos", nargs="*", default=["sac_cpu", "sac_paper"])
+    p.add_argument("--algos", nargs="*", default=["sac_cpu_utd05", "sac_cpu:bf16", "sac_paper", "sac_paper_utd025:bf16"],
+                   help="algo configs (conf/algo/), each optionally with ':PREC[,PREC]', its own learner precisions "
+                        "(default: --precisions)")
     p.add_argument("--collect-collectors", nargs="*", default=["inproc", "background", "background2"], choices=sorted(COLLECTORS),
                    help="collectors for the collection-only measurement")
     p.add_argument("--collectors", nargs="*", default=["inproc", "background", "background:2"],
@@ -366,6 +388,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="stage-buffer sizes for the sampling-time sweep (empty: skip the component timings)")
     p.add_argument("--out", default="results/bench")
     p.add_argument("--no-plain", action="store_true", help="skip the plain single-file loop baseline")
+    p.add_argument("--no-compile", action="store_true", help="skip the algo.compile=true timing of the components")
     p.add_argument("--checkpoint", type=int, default=0, metavar="N",
                    help="also measure the training-state checkpoint of a run holding N transitions (e.g. 1000000)")
     a = p.parse_args(argv)
@@ -396,21 +419,31 @@ def main(argv: list[str] | None = None) -> int:
 
     res["machine"]["native_bf16"] = native_bf16("cpu")
 
-    def plain(bs: int) -> dict:
-        print(f"plain single-file loop, batch {bs} ...", flush=True)
-        q = run_plain_drs(fam.env_id, kw, fam.stage_keys, bs, a.learn_frames)
+    def plain(bs: int, utd: float = 0.5, disc_updates: int = 1) -> dict:
+        print(f"plain single-file loop, batch {bs}, UTD {utd:g}, {disc_updates} discriminator step(s) per update ...", flush=True)
+        q = run_plain_drs(fam.env_id, kw, fam.stage_keys, bs, a.learn_frames, utd=utd, disc_updates=disc_updates,
+                          disc_batch_size=DISC_BATCH)
         torch.set_num_threads(threads)
         print(f"  {q['env_steps_per_s']:.1f} env steps/s", flush=True)
         return q
 
-    for algo in a.algos:
-        # the plain loop is measured right before and right after this config's pipeline rows: this
-        # machine's speed drifts within a run, and the ratio is taken over the mean of the two
-        bs = int(yaml.safe_load((Path(conf_dir()) / "algo" / f"{algo}.yaml").read_text())["batch_size"])
-        before = None if a.no_plain else plain(bs)
+    def mean_of(before: dict, after: dict) -> dict:
+        return {**before, "env_steps_per_s": (before["env_steps_per_s"] + after["env_steps_per_s"]) / 2,
+                "updates_per_s_overall": (before["updates_per_s_overall"] + after["updates_per_s_overall"]) / 2,
+                "before": before["env_steps_per_s"], "after": after["env_steps_per_s"]}
+
+    for spec in a.algos:
+        algo, precisions = parse_algo(spec, a.precisions)
+        acfg = yaml.safe_load((Path(conf_dir()) / "algo" / f"{algo}.yaml").read_text())
+        bs, utd, rupd = int(acfg["batch_size"]), float(acfg["utd"]), int(acfg.get("reward_updates_per_update", 1))
+        # the reference: the plain loop at the paper's UTD (0.5) with the same gradient samples per env step
+        # (batch x UTD), measured right before and right after this config's pipeline rows (this machine's
+        # speed drifts within a run); the ratio is taken over the mean of the two
+        ref_bs = round(bs * utd / PAPER_UTD)
+        before = None if a.no_plain else plain(ref_bs)
         rows = []
         for c in a.collectors:
-            for prec in a.precisions:
+            for prec in precisions:
                 print(f"phase 1, {algo}, {c} collector, {prec} ...", flush=True)
                 r = bench_learn(algo, a.learn_frames, [f"env={a.family}"], collector=c, precision=prec)
                 torch.set_num_threads(threads)
@@ -418,18 +451,24 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"  {r['env_steps_per_s']:.1f} env steps/s, {r['updates_per_s']:.1f} updates/s", flush=True)
         res["learn"] += rows
         if before is not None:
-            after = plain(bs)
-            q = {"batch_size": bs, "env_steps_per_s": (before["env_steps_per_s"] + after["env_steps_per_s"]) / 2,
-                 "updates_per_s_overall": (before["updates_per_s_overall"] + after["updates_per_s_overall"]) / 2,
-                 "before": before["env_steps_per_s"], "after": after["env_steps_per_s"]}
+            q = mean_of(before, plain(ref_bs))
+            q["reference_for"] = [algo]
             for r in rows:
                 r["over_plain"] = r["env_steps_per_s"] / q["env_steps_per_s"]
+                r["plain_reference"] = {"batch_size": ref_bs, "utd": PAPER_UTD}
             res["plain"].append(q)
+            if utd != PAPER_UTD:  # the same lever in the plain loop: what it would gain from fewer, larger updates
+                same = plain(bs, utd, rupd)
+                same["reference_for"] = [f"{algo} (same batch and UTD)"]
+                for r in rows:
+                    r["over_plain_same_updates"] = r["env_steps_per_s"] / same["env_steps_per_s"]
+                res["plain"].append(same)
     res["components"] = []
     if a.stage_sizes:
-        for algo in a.algos:
+        for spec in a.algos:
+            algo, precisions = parse_algo(spec, a.precisions)
             print(f"component timings, {algo} ...", flush=True)
-            res["components"].append(bench_components(algo, a.stage_sizes, precisions=tuple(a.precisions)))
+            res["components"].append(bench_components(algo, a.stage_sizes, precisions=tuple(precisions), compile_too=not a.no_compile))
         print("roofline (GEMM rate at the update's shapes) ...", flush=True)
         res["roofline"] = roofline(res)
     if a.checkpoint:
@@ -452,26 +491,32 @@ def render_markdown(res: dict) -> str:
         f"# drs-bench on {res['family']}", "", f"Command: `{res['command']}`", "",
         f"Machine: {m['cpus']} CPUs, {m['torch_threads']} torch threads, {m['platform']}, torch {m['torch']}, CUDA {m['cuda']}"
         + (f", native bf16: {'yes' if m['native_bf16'] else 'no (bf16 is emulated)'}" if "native_bf16" in m else ""), "",
-        "| measurement | env steps/s | updates/s | vs plain loop |", "|---|---|---|---|",
-        f"| raw simulator (gymnasium, random actions, resets) | {raw:.0f} | - | - |",
+        "`vs plain loop`: against the plain fp32 loop at the paper's UTD 0.5 with the same gradient samples per env step "
+        "(batch x UTD); `vs plain loop, same lever`: against the plain loop at the row's own batch and UTD.", "",
+        "| measurement | env steps/s | updates/s | vs plain loop | vs plain loop, same lever |", "|---|---|---|---|---|",
+        f"| raw simulator (gymnasium, random actions, resets) | {raw:.0f} | - | - | - |",
     ]
     for c, v in res["collect"].items():
-        lines.append(f"| collection only, {c} collector (env + transforms + replay + stage buffers) | {v:.0f} ({v / raw:.2f}x raw) | - | - |")
+        lines.append(f"| collection only, {c} collector (env + transforms + replay + stage buffers) | {v:.0f} ({v / raw:.2f}x raw) | - | - | - |")
     for r in res["learn"]:
         ratio = f"{r['over_plain']:.2f}x" if "over_plain" in r else "-"
-        lines.append(f"| phase 1, {r['algo']} (batch {r['batch_size']}, UTD {r['utd']}), {r['collector']} collector, "
+        same = f"{r['over_plain_same_updates']:.2f}x" if "over_plain_same_updates" in r else "-"
+        lines.append(f"| phase 1, {r['algo']} (batch {r['batch_size']}, UTD {r['utd']:g}), {r['collector']} collector, "
                      f"{r.get('precision', 'fp32')} | "
-                     f"{r['env_steps_per_s']:.1f} | {r['updates_per_s']:.1f} | {ratio} |")
+                     f"{r['env_steps_per_s']:.1f} | {r['updates_per_s']:.1f} | {ratio} | {same} |")
     for q in res["plain"]:
         spread = f" (before {q['before']:.1f}, after {q['after']:.1f})" if "before" in q else ""
-        lines.append(f"| plain single-file PyTorch DrS loop, same algorithm (batch {q['batch_size']}, UTD 0.5), fp32 | "
-                     f"{q['env_steps_per_s']:.1f}{spread} | {q['updates_per_s_overall']:.1f} | 1.00x |")
+        disc = f", {q['disc_updates']} discriminator steps per update" if q.get("disc_updates", 1) != 1 else ""
+        who = f"; reference of {', '.join(q['reference_for'])}" if q.get("reference_for") else ""
+        lines.append(f"| plain single-file PyTorch DrS loop (batch {q['batch_size']}, UTD {q.get('utd', 0.5):g}{disc}), fp32{who} | "
+                     f"{q['env_steps_per_s']:.1f}{spread} | {q['updates_per_s_overall']:.1f} | "
+                     f"{'1.00x' if q.get('utd', 0.5) == 0.5 else '-'} | {'1.00x' if q.get('utd', 0.5) != 0.5 else '-'} |")
     for c in res.get("components", []):
         lines += ["", f"Learner parts, {c['algo']} (batch {c['batch_size']}), ms per call:", "",
                   f"- SAC update (sample, reward recomputation, loss, backward, Adam, target update): {c['sac_update_ms']:.1f} ms eager"
                   + "".join(f", {ms:.1f} ms {p}" for p, ms in (c.get("sac_update_ms_by_precision") or {}).items() if p != "fp32")
                   + (f", {c['sac_update_compiled_ms']:.1f} ms with `algo.compile=true` (compiled in {c['compile_s']:.0f} s)"
-                     if "sac_update_compiled_ms" in c else f" (compile failed: {c.get('compile_error')})"),
+                     if "sac_update_compiled_ms" in c else f" (compile failed: {c['compile_error']})" if "compile_error" in c else ""),
                   f"- reward recomputation on one SAC batch (all discriminators, one pass): {c['reward_recompute_ms']:.2f} ms",
                   f"- discriminator update (one batch per stage): {c['disc_update_ms']:.2f} ms", "",
                   "| stage-buffer transitions | draw one discriminator batch (ms) | file a 50-step episode + draw (ms) |", "|---|---|---|"]

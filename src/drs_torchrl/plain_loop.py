@@ -26,9 +26,10 @@ def _mlp(i, o, h=(256, 256, 256)):
 
 def run_plain_drs(env_id: str, env_kwargs: dict, stage_keys, batch_size: int, timed_frames: int,
                   learning_starts: int = 4000, train_every: int = 64, utd: float = 0.5, gamma: float = 0.8,
-                  tau: float = 0.005, seed: int = 0) -> dict:
+                  tau: float = 0.005, seed: int = 0, disc_updates: int = 1,
+                  disc_batch_size: int | None = None) -> dict:
     """Run the loop for ``learning_starts + timed_frames`` steps; returns env steps/s and updates/s
-    over the timed (learning) part."""
+    over the timed (learning) part. ``disc_updates``: discriminator steps per SAC update; ``disc_batch_size``: per side (default: the SAC batch)."""
     import gymnasium as gym
     import mani_skill.envs  # noqa: F401
 
@@ -39,6 +40,7 @@ def run_plain_drs(env_id: str, env_kwargs: dict, stage_keys, batch_size: int, ti
     env = gym.make(env_id, obs_mode="state", control_mode="pd_ee_delta_pos", num_envs=1, sim_backend="physx_cpu",
                    reward_mode="sparse", render_mode=None, **env_kwargs)
     N = len(stage_keys)
+    db = int(disc_batch_size or batch_size)
     act_dim = env.action_space.shape[-1]
 
     def observe(obs, info):  # state + monotone stage indicators, as the authors append them
@@ -115,12 +117,12 @@ def run_plain_drs(env_id: str, env_kwargs: dict, stage_keys, batch_size: int, ti
         if t_start is None:
             t_start, s0, u0 = time.perf_counter(), step - train_every, updates
         for _ in range(int(train_every * utd)):
-            for k in range(N):  # discriminators
-                neg, pos = sample_stages(0, k + 1, batch_size), sample_stages(k + 1, N + 1, batch_size)
+            for k in [k for _ in range(disc_updates) for k in range(N)]:  # discriminators
+                neg, pos = sample_stages(0, k + 1, db), sample_stages(k + 1, N + 1, db)
                 if neg is None or pos is None:
                     continue
                 logit = disc[k](torch.cat([neg, pos]))
-                label = torch.cat([torch.zeros(batch_size, 1), torch.ones(batch_size, 1)])
+                label = torch.cat([torch.zeros(db, 1), torch.ones(db, 1)])
                 loss_d = F.binary_cross_entropy_with_logits(logit, label)
                 opt_d.zero_grad()
                 loss_d.backward()
@@ -155,4 +157,5 @@ def run_plain_drs(env_id: str, env_kwargs: dict, stage_keys, batch_size: int, ti
             updates += 1
     dt = time.perf_counter() - t_start
     env.close()
-    return {"batch_size": batch_size, "env_steps_per_s": (step - s0) / dt, "updates_per_s_overall": (updates - u0) / dt}
+    return {"batch_size": batch_size, "utd": utd, "disc_updates": disc_updates, "disc_batch_size": db,
+            "env_steps_per_s": (step - s0) / dt, "updates_per_s_overall": (updates - u0) / dt}
