@@ -41,16 +41,16 @@ def test_fewer_updates_rows_are_compared_with_the_plain_loop_at_the_same_samples
     gradient samples per env step), and also with the plain loop given the same lever."""
     from drs_torchrl.bench import parse_algo
 
-    assert parse_algo("sac_cpu:bf16", ["fp32", "bf16"]) == ("sac_cpu", ["bf16"])
+    assert parse_algo("sac_cpu_utd025:bf16", ["fp32", "bf16"]) == ("sac_cpu_utd025", ["bf16"])
     assert parse_algo("sac_paper", ["fp32", "bf16"]) == ("sac_paper", ["fp32", "bf16"])
     with pytest.raises(SystemExit, match="fp32 or bf16"):
         parse_algo("sac_cpu:fp64", ["fp32"])
-    learn = {"algo": "sac_cpu", "utd": 0.25, "batch_size": 512, "collector": "inproc", "precision": "bf16",
+    learn = {"algo": "sac_cpu_utd025", "utd": 0.25, "batch_size": 512, "collector": "inproc", "precision": "bf16",
              "env_steps_per_s": 130.0, "updates_per_s": 32.5, "over_plain": 1.3, "over_plain_same_updates": 0.9,
              "plain_reference": {"batch_size": 256, "utd": 0.5}}
     plain = [{"batch_size": 256, "utd": 0.5, "env_steps_per_s": 100.0, "updates_per_s_overall": 50.0},
              {"batch_size": 512, "utd": 0.25, "disc_updates": 2, "env_steps_per_s": 144.0, "updates_per_s_overall": 36.0}]
-    comp = {"algo": "sac_cpu", "batch_size": 512, "width": 256, "sac_update_gflop": 3.2, "sac_update_ms": 30.0}
+    comp = {"algo": "sac_cpu_utd025", "batch_size": 512, "width": 256, "sac_update_gflop": 3.2, "sac_update_ms": 30.0}
     res = {"raw_sim_steps_per_s": 500.0, "learn": [learn], "plain": plain, "components": [comp]}
     (row,) = roofline(res)
     cores = os.cpu_count() or 1
@@ -59,5 +59,5 @@ def test_fewer_updates_rows_are_compared_with_the_plain_loop_at_the_same_samples
     res.update(command="drs-bench", family="pick_cube", collect={}, roofline=[row],
                machine={"cpus": cores, "torch_threads": 1, "platform": "x", "torch": "x", "cuda": False}, components=[])
     md = render_markdown(res)
-    assert "| phase 1, sac_cpu (batch 512, UTD 0.25), inproc collector, bf16 | 130.0 | 32.5 | 1.30x | 0.90x |" in md
+    assert "| phase 1, sac_cpu_utd025 (batch 512, UTD 0.25), inproc collector, bf16 | 130.0 | 32.5 | 1.30x | 0.90x |" in md
     assert "| plain single-file PyTorch DrS loop (batch 512, UTD 0.25, 2 discriminator steps per update), fp32 | 144.0 |" in md

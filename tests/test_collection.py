@@ -52,7 +52,7 @@ def test_background_run_keeps_utd_exact_and_saves(tmp_path):
                  "learn", tmp_path)
     summary = tr.run()
     assert summary["frames"] == 768
-    # the config's UTD (sac_cpu: 0.25) for every 64-step batch that ends at or after learning_starts (256, 320, ..., 768)
+    # the config's UTD (sac_cpu: 0.5) for every 64-step batch that ends at or after learning_starts (256, 320, ..., 768)
     assert summary["updates"] == len(range(256, 769, 64)) * int(64 * float(tr.cfg.algo.utd))
     assert (tmp_path / "checkpoints" / "reward.pt").is_file()
     assert (tmp_path / "checkpoints" / "state" / "COMPLETE").is_file()

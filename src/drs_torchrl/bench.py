@@ -373,7 +373,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--raw-steps", type=int, default=3000)
     p.add_argument("--collect-steps", type=int, default=3008)
     p.add_argument("--learn-frames", type=int, default=2048)
-    p.add_argument("--algos", nargs="*", default=["sac_cpu_utd05", "sac_cpu:bf16", "sac_paper", "sac_paper_utd025:bf16"],
+    p.add_argument("--algos", nargs="*", default=["sac_cpu", "sac_cpu_utd025:bf16", "sac_paper", "sac_paper_utd025:bf16"],
                    help="algo configs (conf/algo/), each optionally with ':PREC[,PREC]', its own learner precisions "
                         "(default: --precisions)")
     p.add_argument("--collect-collectors", nargs="*", default=["inproc", "background", "background2"], choices=sorted(COLLECTORS),
