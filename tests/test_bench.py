@@ -39,12 +39,14 @@ def test_roofline_bound_is_the_core_time_formula():
 def test_fewer_updates_rows_are_compared_with_the_plain_loop_at_the_same_samples_per_step():
     """A batch-512, UTD-0.25 config is compared with the plain loop at batch 256, UTD 0.5 (the same 128
     gradient samples per env step), and also with the plain loop given the same lever."""
-    from drs_torchrl.bench import parse_algo
+    from drs_torchrl.bench import algo_settings, parse_algo
 
     assert parse_algo("sac_cpu_utd025:bf16", ["fp32", "bf16"]) == ("sac_cpu_utd025", ["bf16"])
     assert parse_algo("sac_paper", ["fp32", "bf16"]) == ("sac_paper", ["fp32", "bf16"])
     with pytest.raises(SystemExit, match="fp32 or bf16"):
         parse_algo("sac_cpu:fp64", ["fp32"])
+    # the plain-loop reference reads the composed config (sac_cpu_utd025 extends sac_cpu through its defaults list)
+    assert algo_settings("sac_cpu_utd025") == (512, 0.25, 2, 256) and algo_settings("sac_cpu") == (256, 0.5, 1, 256)
     learn = {"algo": "sac_cpu_utd025", "utd": 0.25, "batch_size": 512, "collector": "inproc", "precision": "bf16",
              "env_steps_per_s": 130.0, "updates_per_s": 32.5, "over_plain": 1.3, "over_plain_same_updates": 0.9,
              "plain_reference": {"batch_size": 256, "utd": 0.5}}

@@ -31,7 +31,6 @@ import time
 from pathlib import Path
 
 import torch
-import yaml
 
 
 def bench_raw_sim(env_id: str, steps: int, env_kwargs: dict, control_mode: str) -> float:
@@ -352,7 +351,17 @@ def bench_checkpoint(transitions: int) -> dict:
 
 
 PAPER_UTD = 0.5  # the plain loop's reference UTD (the paper's)
-DISC_BATCH = 256  # discriminator batch per side in every config (reward.disc.batch_size)
+
+
+def algo_settings(algo: str) -> tuple[int, float, int, int]:
+    """(SAC batch, UTD, discriminator steps per SAC update, discriminator batch per side) of ``drs-learn algo=ALGO``."""
+    from hydra import compose, initialize_config_dir
+
+    from drs_torchrl.trainers.apps import conf_dir
+
+    with initialize_config_dir(config_dir=conf_dir(), version_base=None):
+        cfg = compose("learn", overrides=[f"algo={algo}"])
+    return int(cfg.algo.batch_size), float(cfg.algo.utd), int(cfg.reward.disc.updates_per_sac_update), int(cfg.reward.disc.batch_size)
 
 
 def parse_algo(spec: str, default_precisions) -> tuple[str, list[str]]:
@@ -366,8 +375,6 @@ def parse_algo(spec: str, default_precisions) -> tuple[str, list[str]]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from drs_torchrl.trainers.apps import conf_dir
-
     p = argparse.ArgumentParser(prog="drs-bench", description=__doc__.split("\n")[0])
     p.add_argument("--family", default="pick_cube")
     p.add_argument("--raw-steps", type=int, default=3000)
@@ -419,10 +426,10 @@ def main(argv: list[str] | None = None) -> int:
 
     res["machine"]["native_bf16"] = native_bf16("cpu")
 
-    def plain(bs: int, utd: float = 0.5, disc_updates: int = 1) -> dict:
+    def plain(bs: int, disc_batch: int, utd: float = 0.5, disc_updates: int = 1) -> dict:
         print(f"plain single-file loop, batch {bs}, UTD {utd:g}, {disc_updates} discriminator step(s) per update ...", flush=True)
         q = run_plain_drs(fam.env_id, kw, fam.stage_keys, bs, a.learn_frames, utd=utd, disc_updates=disc_updates,
-                          disc_batch_size=DISC_BATCH)
+                          disc_batch_size=disc_batch)
         torch.set_num_threads(threads)
         print(f"  {q['env_steps_per_s']:.1f} env steps/s", flush=True)
         return q
@@ -434,13 +441,12 @@ def main(argv: list[str] | None = None) -> int:
 
     for spec in a.algos:
         algo, precisions = parse_algo(spec, a.precisions)
-        acfg = yaml.safe_load((Path(conf_dir()) / "algo" / f"{algo}.yaml").read_text())
-        bs, utd, rupd = int(acfg["batch_size"]), float(acfg["utd"]), int(acfg.get("reward_updates_per_update", 1))
+        bs, utd, rupd, dbs = algo_settings(algo)
         # the reference: the plain loop at the paper's UTD (0.5) with the same gradient samples per env step
         # (batch x UTD), measured right before and right after this config's pipeline rows (this machine's
         # speed drifts within a run); the ratio is taken over the mean of the two
         ref_bs = round(bs * utd / PAPER_UTD)
-        before = None if a.no_plain else plain(ref_bs)
+        before = None if a.no_plain else plain(ref_bs, dbs)
         rows = []
         for c in a.collectors:
             for prec in precisions:
@@ -451,14 +457,14 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"  {r['env_steps_per_s']:.1f} env steps/s, {r['updates_per_s']:.1f} updates/s", flush=True)
         res["learn"] += rows
         if before is not None:
-            q = mean_of(before, plain(ref_bs))
+            q = mean_of(before, plain(ref_bs, dbs))
             q["reference_for"] = [algo]
             for r in rows:
                 r["over_plain"] = r["env_steps_per_s"] / q["env_steps_per_s"]
                 r["plain_reference"] = {"batch_size": ref_bs, "utd": PAPER_UTD}
             res["plain"].append(q)
             if utd != PAPER_UTD:  # the same lever in the plain loop: what it would gain from fewer, larger updates
-                same = plain(bs, utd, rupd)
+                same = plain(bs, dbs, utd, rupd)
                 same["reference_for"] = [f"{algo} (same batch and UTD)"]
                 for r in rows:
                     r["over_plain_same_updates"] = r["env_steps_per_s"] / same["env_steps_per_s"]
