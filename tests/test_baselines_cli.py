@@ -5,6 +5,7 @@ import os
 import shutil
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import pytest
@@ -175,8 +176,10 @@ def test_demonstrations_fill_a_share_of_every_sac_batch(tmp_path, demos):
     tr = Trainer(cfg(f"demos.path={demos}", "demos.sac_share=0.25"), "learn", tmp_path / "run")
     try:
         tr.run()
-        batch = tr.sac_batch()
-        assert batch.shape == (32,) and tr._demo_batch == 8
+        with warnings.catch_warnings():  # the agent's buffer is built for its share: no batch-size warning
+            warnings.simplefilter("error")
+            batch = tr.sac_batch()
+        assert batch.shape == (32,) and tr._demo_batch == 8 and tr.replay.batch_size == 24
         episodes, _ = load_demos(demos)
         demo_obs = torch.cat([ep["state", "observation"] for ep in episodes])
         from_demos = (batch["observation"][:, None, :] == demo_obs[None]).all(-1).any(-1)

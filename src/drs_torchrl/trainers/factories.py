@@ -87,10 +87,12 @@ def make_optimizers(cfg: DictConfig, loss) -> dict[str, torch.optim.Optimizer]:
             "alpha": opt([loss.log_alpha])}
 
 
-def make_replay_buffer(cfg: DictConfig, transform, device: torch.device):
+def make_replay_buffer(cfg: DictConfig, transform, device: torch.device, batch_size: int | None = None):
     """``algo.replay_buffer`` on ``device``; ``transform`` (a learned reward, or None) recomputes
-    ``("next", "reward")`` from the current reward modules at every sample (Algorithm 1, line 18)."""
-    return instantiate(cfg.algo.replay_buffer, storage={"device": str(device)})(transform=transform)
+    ``("next", "reward")`` from the current reward modules at every sample (Algorithm 1, line 18).
+    ``batch_size`` replaces the config's (the agent's part of a batch that also holds demonstrations)."""
+    extra = {} if batch_size is None else {"batch_size": int(batch_size)}
+    return instantiate(cfg.algo.replay_buffer, storage={"device": str(device)}, **extra)(transform=transform)
 
 
 def make_reward_learner(cfg: DictConfig, family: TaskFamily, env, device: torch.device, precision: str, step_fn,

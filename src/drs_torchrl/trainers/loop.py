@@ -203,13 +203,14 @@ class Trainer:
         self.optim_actor, self.optim_critic, self.optim_alpha = (self.optimizers[k] for k in ("actor", "critic", "alpha"))
         # the learned reward recomputes ("next", "reward") from the current discriminators at sampling
         # (its storage lives on the learner's device, where the reward transform runs)
-        self.replay = make_replay_buffer(cfg, self.learned, self.device)
+        # (with demos.sac_share, the demonstrations' own buffer fills its share of each batch, the agent's the rest)
+        self.demo_replay, self._demo_batch = self._demo_transitions(cfg, demos if self.learner is not None else None)
+        self.replay = make_replay_buffer(cfg, self.learned, self.device, int(cfg.algo.batch_size) - self._demo_batch)
         # the actor's intermediate outputs and the collector's bookkeeping are not stored: SACLoss
         # recomputes the former, nothing reads the latter, and every extra key costs at each sample
         self._replay_exclude = (*POLICY_INTERMEDIATE_KEYS, "collector")
         if self.learner is not None:
             self.learner.attach(self.replay)  # GAIL draws the agent's transitions from it
-        self.demo_replay, self._demo_batch = self._demo_transitions(cfg, demos if self.learner is not None else None)
         self.collector = None  # built by run(): its budget depends on where the run starts
         self.assembler = TrajectoryAssembler()
         self.frames = 0
@@ -352,9 +353,8 @@ class Trainer:
         """One SAC batch from the replay buffer (and the demonstrations' share), rewards recomputed."""
         if self.demo_replay is None:
             return self.replay.sample().to(self.device)
-        B, n = int(self.cfg.algo.batch_size), self._demo_batch
-        demo = self.demo_replay.sample(n)
-        agent = self.replay.sample(B - n).to(self.device).select(*demo.keys(True, True))
+        demo = self.demo_replay.sample(self._demo_batch)
+        agent = self.replay.sample().to(self.device).select(*demo.keys(True, True))
         return torch.cat([agent, demo.to(self.device)], 0)
 
     # --------------------------------------------------------------- evaluation
