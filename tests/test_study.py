@@ -93,13 +93,14 @@ def test_a_study_runs_learn_then_reuse_and_a_second_call_skips_both(tmp_path):
     assert p.returncode == 0 and p.stdout.count("finished, skipped") == 2
 
 
-def _fake_run(d: Path, reward: str, seed: int, success: list[float], frames: int, *, app="reuse", complete=False):
+def _fake_run(d: Path, reward: str, seed: int, success: list[float], frames: int, *, app="reuse", complete=False,
+              split="test"):
     """A run directory as drs-learn / drs-reuse leave it (the report reads files only)."""
     (d / "checkpoints" / "state").mkdir(parents=True)
     if complete:
         (d / "checkpoints" / "state" / "COMPLETE").write_text("")
     (d / "config.yaml").write_text(f"phase: {app}\nseed: {seed}\ntotal_frames: {frames}\nreward:\n  name: {reward}\n"
-                                   f"  checkpoint: {Path.cwd().resolve()}/results/x/reward.pt\n")
+                                   f"  checkpoint: {Path.cwd().resolve()}/results/x/reward.pt\nenv:\n  split: {split}\n")
     steps = [1000 * (i + 1) for i in range(len(success))]
     (d / "eval.csv").write_text("step,episodes,success_rate,reach_stage_1\n"
                                 + "".join(f"{s},10,{y},{y}\n" for s, y in zip(steps, success)))
@@ -120,8 +121,10 @@ def test_report_copies_the_record_and_compares_by_run_name(tmp_path, capsys):
         {"name": "learn_s0", "app": "learn", "args": []},
         {"name": "drs_s0", "args": []}, {"name": "drs_s1", "args": []},
         {"name": "one_stage_s0", "args": []},   # reward.name drs too: grouped by its name, not its config
-        {"name": "sparse_s0", "args": []}]})
-    _fake_run(root / "learn_s0", "drs", 0, [0.0, 1.0, 1.0], 3000, app="learn", complete=True)
+        {"name": "sparse_s0", "args": []},
+        {"name": "dense-train_s0", "args": ["env.split=train"]}]})   # the baseline checked where the reward was learned
+    _fake_run(root / "learn_s0", "drs", 0, [0.0, 1.0, 1.0], 3000, app="learn", complete=True, split="train")
+    _fake_run(root / "dense-train_s0", "dense", 0, [0.5], 1000, complete=True, split="train")
     _fake_run(root / "drs_s0", "drs", 0, [0.0, 0.6, 1.0], 3000, complete=True)
     _fake_run(root / "drs_s1", "drs", 1, [0.2, 0.4], 3000, complete=True)   # still running (or interrupted)
     _fake_run(root / "one_stage_s0", "drs", 0, [0.0, 0.0, 0.0], 3000)
@@ -130,7 +133,7 @@ def test_report_copies_the_record_and_compares_by_run_name(tmp_path, capsys):
     out = tmp_path / "results"
     assert main([str(study), "--report", str(out)]) == 0
     # the record, never the training state; the checkout's absolute path is gone from the copies
-    assert sorted(p.name for p in (out / "run_files").iterdir()) == ["drs_s0", "drs_s1", "learn_s0", "one_stage_s0"]
+    assert sorted(p.name for p in (out / "run_files").iterdir()) == ["dense-train_s0", "drs_s0", "drs_s1", "learn_s0", "one_stage_s0"]
     assert not list(out.rglob("state")) and (out / "run_files" / "learn_s0" / "reward.pt").read_bytes() == b"reward"
     assert "checkpoint: results/x/reward.pt" in (out / "run_files" / "drs_s0" / "config.yaml").read_text()
     status = (out / "status.md").read_text()
@@ -140,6 +143,9 @@ def test_report_copies_the_record_and_compares_by_run_name(tmp_path, capsys):
     md = (out / "compare.md").read_text()
     assert "| drs | 2 (0, 1) |" in md and "| one_stage | 1 (0) |" in md and "learn" not in md.split("Runs:")[0]
     assert (out / "compare.png").is_file() and (out / "learn" / "compare.md").is_file()
+    # a reuse run on another split is compared apart: the held-out runs' AUC horizon is theirs (2k, drs_s1), not its 1k
+    assert "dense-train" not in md and "success AUC to 2k" in md
+    assert "| dense-train | 1 (0) |" in (out / "on_train" / "compare.md").read_text()
     # a report into the run root would mix the record with the runs
     assert main([str(study), "--report", str(root / "r")]) == 2
     assert "inside the study's run root" in capsys.readouterr().err

@@ -276,15 +276,30 @@ def report(root: Path, runs: list[Run], out: Path, study_file: str | Path = "",
     paths = {"status": out / "status.md"}
     head = f"Written by `drs-study {study_file} --report {out}`; states as `drs-study --status` sees them.\n\n"
     paths["status"].write_text(head + "\n".join(rows) + "\n")
-    for app, where in (("reuse", out), ("learn", out / "learn")):
-        if copied[app]:
+    # reuse runs on another split than most (e.g. the dense baseline checked on the training variants) get
+    # their own comparison, so that the AUC horizon and the curves of the main one are the held-out runs'
+    by_split: dict[str, list[Path]] = {}
+    for d in copied["reuse"]:
+        by_split.setdefault(_env_split(d), []).append(d)
+    main_split = max(by_split, key=lambda k: len(by_split[k])) if by_split else None
+    jobs = [("reuse", by_split.get(main_split, []), out, "reuse")]
+    jobs += [("reuse", ds, out / f"on_{split}", f"reuse_on_{split}") for split, ds in by_split.items() if split != main_split]
+    jobs.append(("learn", copied["learn"], out / "learn", "learn"))
+    for app, dirs, where, key in jobs:
+        if dirs:
             try:
-                made = compare(copied[app], where, labels=[group_name(d.name) for d in copied[app]])
+                made = compare(dirs, where, labels=[group_name(d.name) for d in dirs])
             except CompareError as exc:
-                print(f"drs-study: report: {app} runs not compared: {exc}", file=sys.stderr)
+                print(f"drs-study: report: {key} runs not compared: {exc}", file=sys.stderr)
                 continue
-            paths.update({f"{app}_{k}": v for k, v in made.items()})
+            paths.update({f"{key}_{k}": v for k, v in made.items()})
     return paths
+
+
+def _env_split(run_dir: Path) -> str:
+    """The ``env.split`` a recorded run trained on (``config.yaml``), ``"-"`` where it names none."""
+    cfg = yaml.safe_load((run_dir / "config.yaml").read_text()) or {}
+    return str((cfg.get("env") or {}).get("split") or "-")
 
 
 def main(argv: list[str] | None = None) -> int:
