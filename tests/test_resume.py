@@ -148,3 +148,36 @@ def test_resume_config_applies_value_overrides_and_new_variant_parameters(tmp_pa
             resume_config(tmp_path, "learn", bad)
     with pytest.raises(ResumeError, match="resume it with drs-learn"):
         resume_config(tmp_path, "reuse", [])
+    # a key added to the config since the run started (stop_at_success) is taken from this version's config
+    newer = OmegaConf.create({"phase": "learn", "total_frames": 100, "stop_at_success": 0.8})
+    assert resume_config(tmp_path, "learn", ["stop_at_success=0.8"], composed=newer).stop_at_success == 0.8
+    with pytest.raises(ResumeError, match="does not exist in the config"):
+        resume_config(tmp_path, "learn", ["typo_key=1"], composed=newer)
+
+
+def test_stop_at_success_ends_phase_1_as_finished_and_a_resume_can_ask_for_it(tmp_path):
+    """``stop_at_success``: once the training success over a full episode window reaches it, the run
+    ends with its final evaluation and saves, finished (not interrupted), short of total_frames; a run
+    started before the key existed takes it on resume. (Threshold 0 so that a tiny run reaches it.)"""
+    from drs_torchrl.study import run_state
+
+    env = dict(os.environ, PYTHONWARNINGS="ignore")
+    run_dir = tmp_path / "run"
+    base = [*TINY, "logger.episode_window=4", "env.max_episode_steps=32"]
+    p = subprocess.run([str(BIN / "drs-learn"), *base, "total_frames=384", f"hydra.run.dir={run_dir}"],
+                       env=env, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-3000:]
+    assert "stopped_at_success" not in json.loads((run_dir / "summary.json").read_text())
+    cfg = OmegaConf.load(run_dir / "config.yaml")   # as a run saved before the key existed
+    del cfg["stop_at_success"]
+    OmegaConf.save(cfg, run_dir / "config.yaml")
+    p = subprocess.run([str(BIN / "drs-learn"), f"resume={run_dir}", "total_frames=100000", "stop_at_success=0.0"],
+                       env=env, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-3000:]
+    s = json.loads((run_dir / "summary.json").read_text())
+    assert s["interrupted"] is False and s["stopped_at_success"]["threshold"] == 0.0 and s["stopped_at_success"]["episodes"] == 4
+    assert 384 < s["frames"] <= 384 + 256 + 64, s["frames"]     # the first train-log row after the resume
+    assert _steps(run_dir / "eval.csv")[-1] == s["frames"]      # the final evaluation ran
+    assert (run_dir / "checkpoints" / "reward.pt").is_file()
+    assert run_state(run_dir, 100000) == "finished"             # a study does not resume it to total_frames
+    assert "stop_at_success=0 at" in p.stdout

@@ -172,7 +172,7 @@ def wanted_frames(run: Run) -> int | None:
 def run_state(run_dir: Path, want_frames: int | None = None) -> str:
     """``finished``, ``resumable`` (a complete training state), ``broken`` (a directory with no
     usable state: it is started again) or ``new``. A run that finished short of ``want_frames``
-    (the study file now asks for more) is ``resumable``."""
+    (the study file now asks for more) is ``resumable``; one that stopped at ``stop_at_success`` is finished."""
     summary = run_dir / "summary.json"
     if summary.is_file():
         try:
@@ -181,7 +181,7 @@ def run_state(run_dir: Path, want_frames: int | None = None) -> str:
 
             total = int(omegaconf.OmegaConf.load(run_dir / "config.yaml").total_frames)
             total = max(total, want_frames or 0)
-            if not s.get("interrupted") and int(s.get("frames", 0)) >= total:
+            if not s.get("interrupted") and (int(s.get("frames", 0)) >= total or s.get("stopped_at_success")):
                 return "finished"
         except Exception:
             pass
@@ -195,8 +195,8 @@ def command(run: Run, run_dir: Path, state: str, args: list[str] | None = None) 
     exe = str(Path(sys.executable).parent / f"drs-{run.app}")
     args = run.args if args is None else args
     if state == "resumable":
-        # overrides that only extend (e.g. a larger total_frames) are honoured on resume
-        extend = [a for a in args if a.split("=", 1)[0] in ("total_frames",)]
+        # budget overrides (a larger total_frames, stop_at_success) are honoured on resume
+        extend = [a for a in args if a.split("=", 1)[0] in ("total_frames", "stop_at_success")]
         return [exe, f"resume={run_dir}", *extend]
     return [exe, *args, f"hydra.run.dir={run_dir}"]
 

@@ -72,8 +72,10 @@ def resume_config(run_dir: Path, phase: str, overrides: list[str], composed: Dic
             raise ResumeError(f"cannot switch config group {key!r} of a run being resumed; start a new run instead")
         if OmegaConf.select(saved, key, default="__missing__") == "__missing__":
             parent = key.rpartition(".")[0]
-            # "+key=value" may add an entry to a free-form mapping the run has (e.g. env.variant_overrides)
-            if not (adding and parent and isinstance(OmegaConf.select(saved, parent, default=None), DictConfig)):
+            # "+key=value" may add an entry to a free-form mapping the run has (e.g. env.variant_overrides);
+            # a key this version's config has and the run's lacks (added since the run started) is taken
+            newer = composed is not None and OmegaConf.select(composed, key, default="__missing__") != "__missing__"
+            if not (newer or (adding and parent and isinstance(OmegaConf.select(saved, parent, default=None), DictConfig))):
                 raise ResumeError(f"override {key!r} does not exist in the config of {run_dir}")
         parsed = OmegaConf.select(composed, key) if composed is not None else yaml.safe_load(value)
         OmegaConf.update(saved, key, parsed, merge=True)

@@ -571,6 +571,8 @@ class Trainer:
                     self.logger.log("train", self.frames, row)
                     bar.set_postfix(success=f"{row.get('success_rate', 0):.2f}", sps=f"{row['env_steps_per_s']:.0f}")
                     win = _Window()
+                    if self._reached_stop_success(row, summary):
+                        break
                 if eval_at.due(self.frames):
                     self._evaluate_and_log(summary)
                 if ckpt_at.due(self.frames):
@@ -594,6 +596,18 @@ class Trainer:
         finally:
             bar.close()
         return self._finish(summary, win, t0, frames0, interrupted, forced)
+
+    def _reached_stop_success(self, row: dict, summary: dict) -> bool:
+        """``stop_at_success``: the training success rate over a full episode window reached it (phase 1
+        "until the agent succeeds"); the run then ends as finished, with its final evaluation and saves."""
+        target = self.cfg.get("stop_at_success")
+        if target is None or len(self.recent) < self.recent.maxlen or row.get("success_rate", 0.0) < float(target):
+            return False
+        summary["stopped_at_success"] = {"success_rate": float(row["success_rate"]), "threshold": float(target),
+                                         "frames": int(self.frames), "episodes": len(self.recent)}
+        tqdm.write(f"drs-{self.phase}: training success {row['success_rate']:.2f} over the last {len(self.recent)} episodes "
+                   f">= stop_at_success={float(target):g} at {self.frames} env steps: stopping")
+        return True
 
     def _store(self, batch) -> int:
         """A collected batch into the replay buffer; its finished episodes to the statistics and to
