@@ -199,8 +199,45 @@ def test_demonstrations_fill_a_share_of_every_sac_batch(tmp_path, demos):
     wide = torch.cat(episodes)
     wide.set("action", torch.cat([wide["action"], wide["action"]], -1))
     meta = {**meta, "actions": {**meta["actions"], "size": 12}}
+    wide_path = save_demos(wide, meta, tmp_path / "wide.demos")
     with pytest.raises(ConfigError, match="12-dimensional; this run acts with 6-dimensional.*drs-demos --control-mode"):
-        Trainer(cfg(f"demos.path={save_demos(wide, meta, tmp_path / 'wide.demos')}", "demos.sac_share=0.25"), "learn", tmp_path / "d")
+        Trainer(cfg(f"demos.path={wide_path}", "demos.sac_share=0.25"), "learn", tmp_path / "d")
+
+
+def test_sac_share_auto_shares_where_the_demonstrations_allow_and_says_why_not(tmp_path, demos, capsys):
+    """demos.sac_share=auto (the default): AUTO_SAC_SHARE of each SAC batch where the demonstrations carry
+    the agent's actions, 0 (with the reason on the console) where they do not; the choice is saved resolved."""
+    from hydra import compose, initialize_config_dir
+
+    from drs_torchrl.demos import load_demos, save_demos
+    from drs_torchrl.trainers.apps import conf_dir
+    from drs_torchrl.trainers.loop import AUTO_SAC_SHARE, Trainer
+
+    def trainer(name, *extra):
+        with initialize_config_dir(config_dir=conf_dir(), version_base=None):
+            cfg = compose("learn", overrides=[*TINY, *extra])
+        assert cfg.demos.sac_share == "auto"
+        return Trainer(cfg, "learn", tmp_path / name)
+
+    tr = trainer("a", f"demos.path={demos}")
+    try:
+        assert tr._demo_batch == round(AUTO_SAC_SHARE * 32) and tr.cfg.demos.sac_share == AUTO_SAC_SHARE
+        assert "demos.sac_share=auto -> 0.25: a share of every SAC batch" in capsys.readouterr().out
+    finally:
+        tr.close()
+    episodes, meta = load_demos(demos)
+    wide = torch.cat(episodes)
+    wide.set("action", torch.cat([wide["action"], wide["action"]], -1))
+    wide_path = save_demos(wide, {**meta, "actions": {**meta["actions"], "size": 12}}, tmp_path / "wide.demos")
+    for name, extra in (("b", [f"demos.path={wide_path}"]), ("c", [])):   # another controller's actions; no demonstrations
+        tr = trainer(name, *extra)
+        try:
+            assert tr.demo_replay is None and tr._demo_batch == 0 and tr.cfg.demos.sac_share == 0.0
+        finally:
+            tr.close()
+    out = capsys.readouterr().out
+    assert "demos.sac_share=auto -> 0: demos.sac_share: the actions in" in out and "12-dimensional" in out
+    assert out.count("demos.sac_share=auto") == 1   # a run without demonstrations has nothing to say
 
 
 @pytest.mark.parametrize("use_action", [False, True])

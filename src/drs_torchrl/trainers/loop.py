@@ -57,6 +57,25 @@ class ConfigError(ValueError):
     """A configuration value that cannot work, with the fix in its message."""
 
 
+# demos.sac_share=auto (the default): this share of every SAC batch from the demonstrations where they carry
+# the agent's actions; the best of issue 12's phase-1 comparison on pick_cube (results/demos_compare/pick_cube/)
+AUTO_SAC_SHARE = 0.25
+
+
+def requested_sac_share(cfg: DictConfig) -> float | None:
+    """``demos.sac_share`` as asked: a number in [0, 1), or None for ``auto``."""
+    raw = (cfg.get("demos") or {}).get("sac_share")
+    if raw is None:
+        return 0.0
+    if isinstance(raw, str) and raw.strip().lower() == "auto":
+        return None
+    if isinstance(raw, bool) or not isinstance(raw, (int, float)):
+        raise ConfigError(f"demos.sac_share must be auto or a number in [0, 1), got {raw!r}; e.g. demos.sac_share=0.25")
+    if not 0 <= float(raw) < 1:
+        raise ConfigError(f"demos.sac_share must be in [0, 1), got {raw}")
+    return float(raw)
+
+
 # numeric settings and their types: a value of another type (``total_frames=abc``) is refused by name
 # before anything compares or computes with it
 _NUMERIC = {
@@ -107,6 +126,10 @@ def validate_config(cfg: DictConfig, phase: str) -> None:
     for ok, msg in checks:
         if not ok:
             raise ConfigError(msg)
+    requested_sac_share(cfg)
+    stop = cfg.get("stop_at_success")
+    if stop is not None and (isinstance(stop, bool) or not isinstance(stop, (int, float)) or not 0 <= stop <= 1):
+        raise ConfigError(f"stop_at_success must be null or a success rate in [0, 1], got {stop!r}; e.g. stop_at_success=0.8")
     if cfg.logger.get("wandb", False):
         import importlib.util
 
@@ -182,8 +205,8 @@ class Trainer:
         if phase == "learn" and reward.name in LEARNED:
             # a resumed DrS run has its demonstrations in its stage-buffer snapshot (the file is read again only
             # for demos.sac_share); the classifiers keep theirs apart from their data and read the file again
-            share = float((cfg.get("demos") or {}).get("sac_share") or 0.0)
-            demos = self._demonstrations(cfg, family) if (not resume or reward.name != "drs" or share > 0) else None
+            asked = requested_sac_share(cfg)  # a number, or None for auto
+            demos = self._demonstrations(cfg, family) if (not resume or reward.name != "drs" or asked != 0) else None
             # step_fn is not a bound method: a learner -> trainer reference cycle would keep the collector (and
             # TorchRL's weight-sync scheme, whose __del__ deadlocks at interpreter exit) alive until then
             self.learner = make_reward_learner(cfg, family, self.env, self.device, self.precision,
@@ -307,27 +330,51 @@ class Trainer:
         """The controller this run's agent acts with (env.control_mode, else its split's, else the family's)."""
         return cfg.env.control_mode or self.family.env_args(cfg.env.split).get("control_mode") or self.family.control_mode
 
-    def _demo_transitions(self, cfg, demos):
-        """RLPD-style share of demonstrations in every SAC batch (``demos.sac_share``): a replay buffer of
-        the demonstrations' transitions, whose rewards the learned reward recomputes at sampling like
-        every other sample's. Returns ``(buffer, transitions per SAC batch)`` or ``(None, 0)``."""
-        share = float((cfg.get("demos") or {}).get("sac_share") or 0.0)
-        if share <= 0:
-            return None, 0
-        if not 0 < share < 1:
-            raise ConfigError(f"demos.sac_share must be in [0, 1), got {share}")
+    def _sac_share_problems(self, cfg, demos) -> list[str]:
+        """Why the demonstrations cannot fill a share of the SAC batch (empty when they can)."""
         if self.learner is None or not demos:
-            raise ConfigError("demos.sac_share needs demonstrations (demos.path) and a reward learned in this run "
-                              "(drs-learn reward=drs|vice_raq|oril|gail), which rewards them at sampling")
+            return ["demos.sac_share needs demonstrations (demos.path) and a reward learned in this run "
+                    "(drs-learn reward=drs|vice_raq|oril|gail), which rewards them at sampling"]
         if "action" not in demos[0].keys() or "state" not in demos[0].keys():
-            raise ConfigError(f"demos.sac_share: {cfg.demos.path} holds states only; SAC needs the agent's actions and "
-                              "the states they were taken in (drs-demos --from-policy records them)")
+            return [f"demos.sac_share: {cfg.demos.path} holds states only; SAC needs the agent's actions and "
+                    "the states they were taken in (drs-demos records them in the agent's controller, as does --from-policy)"]
         have, want = int(demos[0]["action"].shape[-1]), int(self.env.action_spec.shape[-1])
         if have != want:
             mode = self._control_mode(cfg)
-            raise ConfigError(f"demos.sac_share: the actions in {cfg.demos.path} are {have}-dimensional; this run acts with "
-                              f"{want}-dimensional {mode} commands. Record the demonstrations in the agent's controller "
-                              f"(drs-demos --control-mode {mode}, the default, or drs-demos --from-policy), or set demos.sac_share=0")
+            return [f"demos.sac_share: the actions in {cfg.demos.path} are {have}-dimensional; this run acts with "
+                    f"{want}-dimensional {mode} commands. Record the demonstrations in the agent's controller "
+                    f"(drs-demos --control-mode {mode}, the default, or drs-demos --from-policy), or set demos.sac_share=0"]
+        root_keys = [k for k in self.loss.in_keys if isinstance(k, str) and k != "action"]
+        missing = [k for k in root_keys if k not in demos[0].get("state").keys()]
+        if missing:
+            return [f"demos.sac_share: the demonstrations' states lack {missing}, which SAC reads"]
+        return []
+
+    def _demo_transitions(self, cfg, demos):
+        """RLPD-style share of demonstrations in every SAC batch (``demos.sac_share``): a replay buffer of
+        the demonstrations' transitions, whose rewards the learned reward recomputes at sampling like
+        every other sample's. ``auto`` (the default) takes :data:`AUTO_SAC_SHARE` where the demonstrations
+        allow it and says so, 0 where they do not and says why. Returns ``(buffer, transitions per SAC batch)``
+        or ``(None, 0)``."""
+        asked = requested_sac_share(cfg)
+        if asked == 0:
+            return None, 0
+        if asked is None and not demos:  # auto, and no demonstrations (or no reward learned here): nothing to share
+            cfg.demos.sac_share = 0.0
+            return None, 0
+        problems = self._sac_share_problems(cfg, demos)
+        if asked is None:
+            share = 0.0 if problems else AUTO_SAC_SHARE
+            tqdm.write(f"drs-{self.phase}: demos.sac_share=auto -> {share:g}: " + (
+                problems[0] if problems else f"a share of every SAC batch from the {len(demos)} demonstrations' transitions "
+                "(beyond the paper: demos.sac_share=0 is its phase 1; results/demos_compare/pick_cube/)"))
+            cfg.demos.sac_share = share  # saved resolved: a resume keeps this run's choice
+            if share == 0:
+                return None, 0
+        elif problems:
+            raise ConfigError(problems[0])
+        else:
+            share = asked
         root_keys = [k for k in self.loss.in_keys if isinstance(k, str) and k != "action"]
         next_keys = list(dict.fromkeys([*root_keys, *self.learned.reward_in_keys, "stage"]))
         rows = []
@@ -338,9 +385,6 @@ class Trainer:
             nxt = TensorDict({k: ep.get(k) for k in next_keys}, batch_size=[T])
             nxt.update({"reward": torch.zeros(T, 1), "done": ends.clone(), "terminated": ends.clone(),
                         "truncated": torch.zeros(T, 1, dtype=torch.bool)})
-            missing = [k for k in root_keys if k not in ep.get("state").keys()]
-            if missing:
-                raise ConfigError(f"demos.sac_share: the demonstrations' states lack {missing}, which SAC reads")
             rows.append(TensorDict({**{k: ep.get("state").get(k) for k in root_keys}, "action": ep.get("action"),
                                     "next": nxt}, batch_size=[T]))
         buffer = ReplayBuffer(storage=LazyTensorStorage(sum(r.shape[0] for r in rows), device=self.device),
