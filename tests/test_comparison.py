@@ -91,7 +91,12 @@ def test_training_table_gives_the_first_step_each_stage_passes_half(tmp_path):
     b = make_run(tmp_path, "b", "drs", 1, [0.0, 0.0, 1.0], [0.4, 0.8, 1.0])
     md = compare([a, b], tmp_path / "out")["md"].read_text()
     # stage 1: mean 0.3, 0.7, 1.0 -> 2k; success: mean 0, 0.1, 0.5 -> 3k
-    assert "| group | reached stage 1 | success |" in md and "| drs | 2k | 3k |" in md
+    assert "| group | reached stage 1 (is_grasped) | success |" in md and "| drs | 2k | 3k |" in md
+    # runs with other stages (an ablation's env.stages) in the same table: the columns keep their numbers only
+    c = make_run(tmp_path, "c", "drs", 2, [0.0, 0.0, 1.0], [0.4, 0.8, 1.0])
+    (c / "config.yaml").write_text((c / "config.yaml").read_text().replace("  split: test\n", "  split: test\n  stages: [is_obj_placed, success]\n"))
+    md = compare([a, c], tmp_path / "out2")["md"].read_text()
+    assert "| group | reached stage 1 | success |" in md
 
 
 def test_first_step_counts_only_steps_every_seed_reached(tmp_path):

@@ -41,6 +41,7 @@ class RunRecord:
     seed: object
     eval: "object"          # pandas DataFrame (eval.csv), or None when no evaluation ran yet
     train: "object"         # pandas DataFrame (train.csv)
+    stages: tuple | None = None   # the run's stage indicators, success last (None when its config does not say)
 
 
 @dataclass
@@ -79,7 +80,30 @@ def load_run(run: Path, group_by: tuple[str, ...] = DEFAULT_GROUP_BY, label: str
     ev = pd.read_csv(run / "eval.csv") if (run / "eval.csv").exists() else None
     if ev is not None and ev.empty:
         ev = None
-    return RunRecord(path=run, label=label, seed=cfg.get("seed"), eval=ev, train=pd.read_csv(run / "train.csv"))
+    return RunRecord(path=run, label=label, seed=cfg.get("seed"), eval=ev, train=pd.read_csv(run / "train.csv"),
+                     stages=_run_stages(cfg))
+
+
+def _run_stages(cfg: dict) -> tuple | None:
+    """The stage indicators a run used: ``env.stages`` (an ablation), else its family's."""
+    env = cfg.get("env") if isinstance(cfg.get("env"), dict) else {}
+    if env.get("stages"):
+        return tuple(env["stages"])
+    try:
+        from drs_torchrl.tasks import get_family
+
+        return tuple(get_family(env.get("family")).stage_keys)
+    except Exception:  # a custom family, or a config from elsewhere: the columns keep their numbers
+        return None
+
+
+def _stage_label(runs: list[RunRecord], column: str) -> str:
+    """``reached stage k``, with the stage's name when every run names the same stages."""
+    k = int(column.rsplit("_", 1)[1])
+    names = {r.stages for r in runs}
+    if len(names) == 1 and (only := next(iter(names))) is not None and k <= len(only):
+        return f"reached stage {k} ({only[k - 1]})"
+    return f"reached stage {k}"
 
 
 def group_runs(runs: list[RunRecord]) -> list[Group]:
@@ -213,7 +237,8 @@ def compare(run_dirs: list[Path], out_dir: Path, group_by: tuple[str, ...] = DEF
     panels = [("eval", "success_rate", "evaluation success (deterministic policy)")]
     panels += [("eval", c, f"evaluation: reached stage {c.rsplit('_', 1)[1]}") for c in eval_stages]
     panels += [("train", "success_rate", "training episodes: success (rolling)")]
-    panels += [("train", c, f"training episodes: reached stage {c.rsplit('_', 1)[1]} (rolling)") for c in train_stages]
+    every = [r for g in groups for r in g.runs]
+    panels += [("train", c, f"training episodes: {_stage_label(every, c)} (rolling)") for c in train_stages]
     ncols = min(3, len(panels))
     nrows = -(-len(panels) // ncols)
     fig, axes = plt.subplots(nrows, ncols, figsize=(5.2 * ncols, 3.8 * nrows), squeeze=False)
@@ -267,7 +292,7 @@ def compare(run_dirs: list[Path], out_dir: Path, group_by: tuple[str, ...] = DEF
     if train_stages:  # when each stage is first reached in half the training episodes (issue 12's table)
         cols = [*train_stages, "success_rate"]
         lines += ["", "Training episodes (rolling window), mean over each group's runs: the first step at which it passes 0.5",
-                  "", "| group | " + " | ".join(f"reached stage {c.rsplit('_', 1)[1]}" for c in train_stages) + " | success |",
+                  "", "| group | " + " | ".join(_stage_label(every, c) for c in train_stages) + " | success |",
                   "|---|" + "---|" * len(cols)]
         for g in groups:
             firsts = [first_step_over(g.runs, source="train", column=c) for c in cols]
