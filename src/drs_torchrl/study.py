@@ -282,10 +282,10 @@ def report(root: Path, runs: list[Run], out: Path, study_file: str | Path = "",
     for d in copied["reuse"]:
         by_split.setdefault(_env_split(d), []).append(d)
     main_split = max(by_split, key=lambda k: len(by_split[k])) if by_split else None
-    jobs = [("reuse", by_split.get(main_split, []), out, "reuse")]
-    jobs += [("reuse", ds, out / f"on_{split}", f"reuse_on_{split}") for split, ds in by_split.items() if split != main_split]
-    jobs.append(("learn", copied["learn"], out / "learn", "learn"))
-    for app, dirs, where, key in jobs:
+    jobs = [(by_split.get(main_split, []), out, "reuse")]
+    jobs += [(ds, out / f"on_{split}", f"reuse_on_{split}") for split, ds in by_split.items() if split != main_split]
+    jobs.append((copied["learn"], out / "learn", "learn"))
+    for dirs, where, key in jobs:
         if dirs:
             try:
                 made = compare(dirs, where, labels=[group_name(d.name) for d in dirs])
