@@ -8,6 +8,7 @@ a set of config overrides on a phase-1 PickCube trainer holding 1024 real transi
     .venv/bin/python bin/ab_sac_update.py --threads 1 --compare adam       # for-loop / foreach / fused Adam
     .venv/bin/python bin/ab_sac_update.py --algo sac_paper --compare precision
     .venv/bin/python bin/ab_sac_update.py --threads 1 --compare utd        # fewer, larger updates: learner ms per env step
+    .venv/bin/python bin/ab_sac_update.py --threads 1 --compare schedules  # half the discriminator steps; batch 384 at UTD 1/3
 """
 import argparse
 import json
@@ -47,6 +48,13 @@ COMPARISONS = {
         "bf16, batch 1024, UTD 0.25": ["algo.precision=bf16", "algo.batch_size=1024", "algo.utd=0.25",
                                        "reward.disc.updates_per_sac_update=2"],
     },
+    # issue 12's cheaper schedules at batch 256's gradient samples per env step: half the discriminator steps,
+    # or batch 384 at UTD 1/3 (the discriminators at 1.5 steps per SAC update); compare ms per env step
+    "schedules": {
+        "bf16, sac_cpu (batch 256, UTD 0.5, 1 discriminator step)": ["algo=sac_cpu", "algo.precision=bf16"],
+        "bf16, sac_cpu_halfdisc (0.5 discriminator steps)": ["algo=sac_cpu_halfdisc", "algo.precision=bf16"],
+        "bf16, sac_cpu_utd033 (batch 384, UTD 1/3, 1.5 discriminator steps)": ["algo=sac_cpu_utd033", "algo.precision=bf16"],
+    },
     "adam": {"loop": [*UNFUSED, "+algo.optim.foreach=false"], "foreach": [*UNFUSED, "+algo.optim.foreach=true"], "fused": []},
 }
 
@@ -54,6 +62,8 @@ COMPARISONS = {
 def trainer(algo, extra):
     whole = WHOLE in extra
     extra = [x for x in extra if x != WHOLE]
+    algo = next((x.split("=", 1)[1] for x in extra if x.startswith("algo=")), algo)  # a variant's own algo config
+    extra = [x for x in extra if not x.startswith("algo=")]
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
         cfg = compose("learn", overrides=[f"algo={algo}", "total_frames=1024", "algo.learning_starts=100000", "eval.episodes=0",
                                           "logger.progress_bar=false", "logger.tensorboard=false",

@@ -353,6 +353,11 @@ def bench_checkpoint(transitions: int) -> dict:
 PAPER_UTD = 0.5  # the plain loop's reference UTD (the paper's)
 
 
+def _paper_settings(q: dict) -> bool:
+    """A plain-loop row at the paper's update schedule (UTD 0.5, one discriminator step per update): a reference row."""
+    return q.get("utd", PAPER_UTD) == PAPER_UTD and q.get("disc_updates", 1) == 1
+
+
 def algo_settings(algo: str) -> tuple[int, float, int, int]:
     """(SAC batch, UTD, discriminator steps per SAC update, discriminator batch per side) of ``drs-learn algo=ALGO``."""
     from hydra import compose, initialize_config_dir
@@ -361,7 +366,7 @@ def algo_settings(algo: str) -> tuple[int, float, int, int]:
 
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
         cfg = compose("learn", overrides=[f"algo={algo}"])
-    return int(cfg.algo.batch_size), float(cfg.algo.utd), int(cfg.reward.disc.updates_per_sac_update), int(cfg.reward.disc.batch_size)
+    return int(cfg.algo.batch_size), float(cfg.algo.utd), float(cfg.reward.disc.updates_per_sac_update), int(cfg.reward.disc.batch_size)
 
 
 def parse_algo(spec: str, default_precisions) -> tuple[str, list[str]]:
@@ -426,8 +431,8 @@ def main(argv: list[str] | None = None) -> int:
 
     res["machine"]["native_bf16"] = native_bf16("cpu")
 
-    def plain(bs: int, disc_batch: int, utd: float = 0.5, disc_updates: int = 1) -> dict:
-        print(f"plain single-file loop, batch {bs}, UTD {utd:g}, {disc_updates} discriminator step(s) per update ...", flush=True)
+    def plain(bs: int, disc_batch: int, utd: float = 0.5, disc_updates: float = 1) -> dict:
+        print(f"plain single-file loop, batch {bs}, UTD {utd:g}, {disc_updates:g} discriminator step(s) per update ...", flush=True)
         q = run_plain_drs(fam.env_id, kw, fam.stage_keys, bs, a.learn_frames, utd=utd, disc_updates=disc_updates,
                           disc_batch_size=disc_batch)
         torch.set_num_threads(threads)
@@ -463,7 +468,7 @@ def main(argv: list[str] | None = None) -> int:
                 r["over_plain"] = r["env_steps_per_s"] / q["env_steps_per_s"]
                 r["plain_reference"] = {"batch_size": ref_bs, "utd": PAPER_UTD}
             res["plain"].append(q)
-            if utd != PAPER_UTD:  # the same lever in the plain loop: what it would gain from fewer, larger updates
+            if utd != PAPER_UTD or rupd != 1:  # the same lever in the plain loop: what it would gain from fewer updates
                 same = plain(bs, dbs, utd, rupd)
                 same["reference_for"] = [f"{algo} (same batch and UTD)"]
                 for r in rows:
@@ -512,11 +517,11 @@ def render_markdown(res: dict) -> str:
                      f"{r['env_steps_per_s']:.1f} | {r['updates_per_s']:.1f} | {ratio} | {same} |")
     for q in res["plain"]:
         spread = f" (before {q['before']:.1f}, after {q['after']:.1f})" if "before" in q else ""
-        disc = f", {q['disc_updates']} discriminator steps per update" if q.get("disc_updates", 1) != 1 else ""
+        disc = f", {q['disc_updates']:g} discriminator steps per update" if q.get("disc_updates", 1) != 1 else ""
         who = f"; reference of {', '.join(q['reference_for'])}" if q.get("reference_for") else ""
         lines.append(f"| plain single-file PyTorch DrS loop (batch {q['batch_size']}, UTD {q.get('utd', 0.5):g}{disc}), fp32{who} | "
                      f"{q['env_steps_per_s']:.1f}{spread} | {q['updates_per_s_overall']:.1f} | "
-                     f"{'1.00x' if q.get('utd', 0.5) == 0.5 else '-'} | {'1.00x' if q.get('utd', 0.5) != 0.5 else '-'} |")
+                     f"{'1.00x' if _paper_settings(q) else '-'} | {'1.00x' if not _paper_settings(q) else '-'} |")
     for c in res.get("components", []):
         lines += ["", f"Learner parts, {c['algo']} (batch {c['batch_size']}), ms per call:", "",
                   f"- SAC update (sample, reward recomputation, loss, backward, Adam, target update): {c['sac_update_ms']:.1f} ms eager"

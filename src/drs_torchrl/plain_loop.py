@@ -26,7 +26,7 @@ def _mlp(i, o, h=(256, 256, 256)):
 
 def run_plain_drs(env_id: str, env_kwargs: dict, stage_keys, batch_size: int, timed_frames: int,
                   learning_starts: int = 4000, train_every: int = 64, utd: float = 0.5, gamma: float = 0.8,
-                  tau: float = 0.005, seed: int = 0, disc_updates: int = 1,
+                  tau: float = 0.005, seed: int = 0, disc_updates: float = 1,
                   disc_batch_size: int | None = None) -> dict:
     """Run the loop for ``learning_starts + timed_frames`` steps; returns env steps/s and updates/s
     over the timed (learning) part. ``disc_updates``: discriminator steps per SAC update; ``disc_batch_size``: per side (default: the SAC batch)."""
@@ -90,7 +90,7 @@ def run_plain_drs(env_id: str, env_kwargs: dict, stage_keys, batch_size: int, ti
         pool = np.concatenate(pool)
         return torch.from_numpy(pool[rng.integers(len(pool), size=n)])
 
-    step, updates, t_start = 0, 0, None
+    step, updates, t_start, owed_disc = 0, 0, None, 0.0
     while step < total:
         for _ in range(train_every):
             if step < learning_starts:
@@ -117,7 +117,10 @@ def run_plain_drs(env_id: str, env_kwargs: dict, stage_keys, batch_size: int, ti
         if t_start is None:
             t_start, s0, u0 = time.perf_counter(), step - train_every, updates
         for _ in range(int(train_every * utd)):
-            for k in [k for _ in range(disc_updates) for k in range(N)]:  # discriminators
+            owed_disc += disc_updates  # fractional rates (0.5: every second update) carry over
+            n_disc = int(owed_disc + 1e-9)
+            owed_disc -= n_disc
+            for k in [k for _ in range(n_disc) for k in range(N)]:  # discriminators
                 neg, pos = sample_stages(0, k + 1, db), sample_stages(k + 1, N + 1, db)
                 if neg is None or pos is None:
                     continue

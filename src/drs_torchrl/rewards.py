@@ -129,11 +129,11 @@ def new_reward_learner(cfg, family: TaskFamily, env, metadata: dict, *, device, 
     if cfg.name == "drs":
         reward = new_drs_reward(cfg, family, env.observation_spec, metadata).to(device)
         return DrSLearner(reward, capacity=int(cfg.stage_buffer_size), batch_size=int(d.batch_size),
-                          scratch_dir=cfg.get("stage_buffer_scratch_dir"), updates_per_rl_update=int(d.updates_per_sac_update),
+                          scratch_dir=cfg.get("stage_buffer_scratch_dir"), updates_per_rl_update=float(d.updates_per_sac_update),
                           early_stop_threshold=d.early_stop_threshold, window=int(d.window), latch=bool(d.get("latch", True)),
                           demos=demos, **common)
     reward = new_classifier_reward(cfg, family, env.observation_spec, env.action_spec, metadata).to(device)
-    common.update(batch_size=int(d.batch_size), updates_per_rl_update=int(d.updates_per_sac_update))
+    common.update(batch_size=int(d.batch_size), updates_per_rl_update=float(d.updates_per_sac_update))
     if cfg.name == "vice_raq":
         return SuccessClassifierLearner(reward, success_key=family.stage_keys[-1], capacity=int(cfg.buffer_size), **common)
     if cfg.name == "oril":

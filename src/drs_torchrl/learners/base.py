@@ -49,6 +49,8 @@ class RewardLearner:
         self._autocast = autocast or contextlib.nullcontext
         self._step_fn = step_fn
         self.updates = 0
+        self.updates_per_rl_update = 1.0
+        self._owed_steps = 0.0
 
     # ------------------------------------------------------------------ the loop's calls
     def prepare(self, env) -> None:
@@ -81,12 +83,13 @@ class RewardLearner:
         return {}
 
     def state_dict(self) -> dict[str, Any]:
-        return {"reward": self.reward.state_dict(), "updates": self.updates,
+        return {"reward": self.reward.state_dict(), "updates": self.updates, "owed_steps": self._owed_steps,
                 "optimizers": {k: o.state_dict() for k, o in self.optimizers().items()}}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.reward.load_state_dict(state["reward"])
         self.updates = int(state.get("updates", 0))
+        self._owed_steps = float(state.get("owed_steps", 0.0))
         for k, opt in self.optimizers().items():
             if k in (state.get("optimizers") or {}):
                 opt.load_state_dict(state["optimizers"][k])
@@ -98,6 +101,20 @@ class RewardLearner:
         """Read what :meth:`dump_buffers` wrote."""
 
     # ------------------------------------------------------------------ helpers
+    def _set_steps_per_rl_update(self, value: float) -> None:
+        value = float(value)
+        if not value > 0:
+            raise ValueError(f"reward-learner steps per RL update must be > 0, got {value}")
+        self.updates_per_rl_update = value
+
+    def _steps_due(self) -> int:
+        """The learner's steps for this RL update. ``updates_per_rl_update`` may be fractional (0.5: one
+        step every second RL update; 1.5: one and two in turn); the remainder carries to the next call."""
+        self._owed_steps += self.updates_per_rl_update
+        k = int(self._owed_steps + 1e-9)
+        self._owed_steps -= k
+        return k
+
     def _train_step(self, loss: torch.Tensor, optimizers: Sequence[torch.optim.Optimizer]) -> None:
         for opt in optimizers:
             opt.zero_grad(set_to_none=True)

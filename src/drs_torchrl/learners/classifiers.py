@@ -44,11 +44,11 @@ class _TwoSetClassifier(RewardLearner):
     """A classifier of positives vs negatives held in two TorchRL replay buffers."""
 
     def __init__(self, reward: ClassifierReward, *, capacity: int = 1_000_000, batch_size: int = 256,
-                 lr: float = 3e-4, fused: bool = False, updates_per_rl_update: int = 1, **kw):
+                 lr: float = 3e-4, fused: bool = False, updates_per_rl_update: float = 1, **kw):
         super().__init__(**kw)
         self.reward = reward
         self.batch_size = int(batch_size)
-        self.updates_per_rl_update = int(updates_per_rl_update)
+        self._set_steps_per_rl_update(updates_per_rl_update)
         self.positives, self.negatives = _buffer(capacity), _buffer(capacity)
         self.optim = torch.optim.Adam(reward.classifier.parameters(), lr=float(lr), fused=bool(fused))
 
@@ -113,7 +113,7 @@ class SuccessClassifierLearner(_TwoSetClassifier):
 
     def update(self):
         out = None
-        for _ in range(self.updates_per_rl_update):
+        for _ in range(self._steps_due()):
             step = self._step()
             out = step if step is not None else out
         return out
@@ -183,7 +183,7 @@ class DemoDiscriminatorLearner(RewardLearner):
     name = "gail"
 
     def __init__(self, reward: ClassifierReward, *, demos: list[TensorDictBase], batch_size: int = 256,
-                 lr: float = 3e-4, fused: bool = False, updates_per_rl_update: int = 1, grad_penalty: bool = False,
+                 lr: float = 3e-4, fused: bool = False, updates_per_rl_update: float = 1, grad_penalty: bool = False,
                  **kw):
         super().__init__(**kw)
         if not demos:
@@ -201,7 +201,8 @@ class DemoDiscriminatorLearner(RewardLearner):
         else:
             self.demo_x = torch.cat([reward.state_features(ep) for ep in demos], 0)
             self.demo_a = self.demo_x.new_zeros(self.demo_x.shape[0], 0)
-        self.batch_size, self.updates_per_rl_update = int(batch_size), int(updates_per_rl_update)
+        self.batch_size = int(batch_size)
+        self._set_steps_per_rl_update(updates_per_rl_update)
         disc = TensorDictModule(_ProbabilityOf(reward), in_keys=["observation", "action"], out_keys=["d_logits"])
         self.loss = GAILLoss(disc, use_grad_penalty=bool(grad_penalty))
         self.optim = torch.optim.Adam(reward.classifier.parameters(), lr=float(lr), fused=bool(fused))
@@ -222,7 +223,7 @@ class DemoDiscriminatorLearner(RewardLearner):
         if self.replay is None or len(self.replay) == 0:
             return None
         out = None
-        for _ in range(self.updates_per_rl_update):
+        for _ in range(self._steps_due()):
             B = self.batch_size
             i = torch.randint(self.demo_x.shape[0], (B,))
             agent_x, agent_a = self._agent(B)

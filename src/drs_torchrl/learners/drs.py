@@ -26,7 +26,7 @@ class DrSLearner(RewardLearner):
         capacity, batch_size, scratch_dir: stage-buffer size per stage, discriminator batch per side,
             optional on-disk storage.
         lr, fused: Adam of the discriminators.
-        updates_per_rl_update: discriminator steps per RL update (the authors': 1).
+        updates_per_rl_update: discriminator steps per RL update (the authors': 1; may be fractional, e.g. 0.5).
         early_stop_threshold, window, latch: see :class:`~drs_torchrl.objectives.DiscriminatorLoss`.
         demos: successful trajectories (``(T,)`` TensorDicts of states) for the top buffer (line 3).
         file_successes: False keeps the agent's successful episodes out of the top buffer (they still
@@ -37,7 +37,7 @@ class DrSLearner(RewardLearner):
     name = "drs"
 
     def __init__(self, reward: DrSReward, *, capacity: int = 1_000_000, batch_size: int = 256, scratch_dir=None,
-                 lr: float = 3e-4, fused: bool = False, updates_per_rl_update: int = 1,
+                 lr: float = 3e-4, fused: bool = False, updates_per_rl_update: float = 1,
                  early_stop_threshold: float | None = 0.95, window: int = 100, latch: bool = True,
                  demos: list[TensorDictBase] | None = None, file_successes: bool = True, **kw):
         super().__init__(**kw)
@@ -47,7 +47,7 @@ class DrSLearner(RewardLearner):
         self.loss = DiscriminatorLoss(reward.discriminators, reward.reward_in_keys, early_stop_threshold=early_stop_threshold,
                                       window=int(window), latch=bool(latch))
         self.optim = torch.optim.Adam(reward.discriminators.parameters(), lr=float(lr), fused=bool(fused))
-        self.updates_per_rl_update = int(updates_per_rl_update)
+        self._set_steps_per_rl_update(updates_per_rl_update)
         self.num_demos = 0
         self.file_successes = bool(file_successes)
         for ep in demos or ():
@@ -65,10 +65,10 @@ class DrSLearner(RewardLearner):
         return self.stage_buffers.add_trajectory(episode)
 
     def update(self) -> TensorDict | None:
+        if len(self.stage_buffers) == 0:
+            return None
         out = None
-        for _ in range(self.updates_per_rl_update):
-            if len(self.stage_buffers) == 0:
-                return None
+        for _ in range(self._steps_due()):
             batch = self.stage_buffers.sample_discriminator_batch().to(self.device)
             with self._autocast():
                 out = self.loss(batch)

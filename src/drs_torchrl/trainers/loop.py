@@ -84,7 +84,7 @@ _NUMERIC = {
     "algo.batch_size": int, "algo.frames_per_batch": int, "algo.learning_starts": int, "algo.buffer_size": int,
     "algo.utd": (int, float), "algo.gamma": (int, float), "algo.tau": (int, float),
     "reward.alpha": (int, float), "reward.stage_buffer_size": int,
-    "reward.disc.batch_size": int, "reward.disc.lr": (int, float), "reward.disc.updates_per_sac_update": int,
+    "reward.disc.batch_size": int, "reward.disc.lr": (int, float), "reward.disc.updates_per_sac_update": (int, float),
     "reward.disc.window": int, "reward.disc.early_stop_threshold": (int, float, type(None)),
 }
 
@@ -123,6 +123,8 @@ def validate_config(cfg: DictConfig, phase: str) -> None:
     ]
     if phase == "learn" and cfg.reward.name in LEARNED:
         checks.append((cfg.reward.disc.batch_size > 0, "reward.disc.batch_size must be > 0"))
+        checks.append((cfg.reward.disc.updates_per_sac_update > 0,
+                       f"reward.disc.updates_per_sac_update must be > 0 (fractions allowed, e.g. 0.5), got {cfg.reward.disc.updates_per_sac_update}"))
     for ok, msg in checks:
         if not ok:
             raise ConfigError(msg)
