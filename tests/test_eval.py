@@ -75,3 +75,41 @@ def test_reward_episode_figure_is_drawn_from_a_real_episode(trained, tmp_path):
     assert p.returncode == 0, p.stderr[-2000:]
     img = iio.imread(out)
     assert img.shape[0] > 200 and img.shape[1] > 400 and img.std() > 5
+
+
+def test_eval_reads_a_committed_record(trained, tmp_path):
+    """drs-study --report flattens a run into config.yaml, policy.pt and reward.pt side by side; drs-eval takes that too."""
+    import shutil
+
+    rec = tmp_path / "record"
+    rec.mkdir()
+    for src in ("config.yaml", "checkpoints/policy.pt", "checkpoints/reward.pt"):
+        shutil.copy(trained / src, rec / Path(src).name)
+    p = run("drs-eval", str(rec), "--episodes", "1", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert json.loads((rec / "eval_train.json").read_text())["rows"][0]["return"] < 0  # under the learned reward
+
+
+def test_reward_probe_reports_every_stage_with_a_rank_correlation(trained, tmp_path):
+    p = subprocess.run([sys.executable, str(Path(__file__).parents[1] / "bin" / "probe_reward.py"),
+                        "--reward", str(trained / "checkpoints" / "reward.pt"), "--policy", str(trained),
+                        "--splits", "test", "--episodes", "2", "--out", str(tmp_path)],
+                       capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    assert p.returncode == 0, p.stderr[-2000:]
+    res = json.loads((tmp_path / "probe.json").read_text())
+    stages = res["splits"]["test"]["stages"]
+    assert [s["stage"] for s in stages] == [0, 1, 2]
+    assert sum(s["states"] for s in stages) >= 2  # two episodes of at most 20 steps, none ending before a step
+    assert all(-1 <= s["tanh_d_mean"] <= 1 for s in stages if s["states"])
+    assert (tmp_path / "probe.png").stat().st_size > 1000 and "Spearman" in (tmp_path / "probe.md").read_text()
+
+
+def test_spearman_of_the_probe_ranks_and_refuses_degenerate_inputs():
+    sys.path.insert(0, str(Path(__file__).parents[1] / "bin"))
+    from probe_reward import spearman
+
+    import numpy as np
+
+    x = np.array([0.1, 0.5, 0.2, 0.9])
+    assert spearman(x, x ** 3) == pytest.approx(1.0) and spearman(x, -x) == pytest.approx(-1.0)
+    assert np.isnan(spearman(x, np.ones(4))) and np.isnan(spearman(x[:2], x[:2]))

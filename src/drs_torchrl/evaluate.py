@@ -32,7 +32,10 @@ def _run_reward(run_dir: Path, cfg):
 
     if cfg.reward.name not in LEARNED or cfg.phase != "learn":
         return None  # a reused learned reward is the setup's frozen transform
-    return load_reward(run_dir / "checkpoints" / "reward.pt")
+    path = run_dir / "checkpoints" / "reward.pt"
+    if not path.is_file() and (run_dir / "reward.pt").is_file():
+        path = run_dir / "reward.pt"  # a committed record (drs-study --report): checkpoints flattened beside the CSVs
+    return load_reward(path)
 
 
 def evaluate_run(run_dir: str | Path, *, episodes: int = 10, split: str | None = None, overrides: dict | None = None,
