@@ -54,6 +54,8 @@ COMPARISONS = {
         "bf16, sac_cpu (batch 256, UTD 0.5, 1 discriminator step)": ["algo=sac_cpu", "algo.precision=bf16"],
         "bf16, sac_cpu_halfdisc (0.5 discriminator steps)": ["algo=sac_cpu_halfdisc", "algo.precision=bf16"],
         "bf16, sac_cpu_utd033 (batch 384, UTD 1/3, 1.5 discriminator steps)": ["algo=sac_cpu_utd033", "algo.precision=bf16"],
+        "bf16, sac_cpu_utd033_halfdisc (batch 384, UTD 1/3, 0.75 discriminator steps)": ["algo=sac_cpu_utd033_halfdisc",
+                                                                                         "algo.precision=bf16"],
     },
     "adam": {"loop": [*UNFUSED, "+algo.optim.foreach=false"], "foreach": [*UNFUSED, "+algo.optim.foreach=true"], "fused": []},
 }

@@ -46,6 +46,7 @@ def test_factories_assemble_a_sac_update_on_a_family_env():
 
 @pytest.mark.parametrize("algo, batch, utd, disc_steps", [("sac_cpu", 256, 0.5, 1), ("sac_cpu_utd025", 512, 0.25, 2),
                                                           ("sac_cpu_utd033", 384, 0.3333333333, 1.5), ("sac_cpu_halfdisc", 256, 0.5, 0.5),
+                                                          ("sac_cpu_utd033_halfdisc", 384, 0.3333333333, 0.75),
                                                           ("sac_paper", 1024, 0.5, 1), ("sac_paper_utd025", 2048, 0.25, 2)])
 def test_reward_learner_steps_follow_the_algo_config(algo, batch, utd, disc_steps):
     """Fewer, larger SAC updates keep the discriminators' steps per env step (issue 12): each learned
