@@ -32,7 +32,7 @@ def spearman(x: np.ndarray, y: np.ndarray) -> float:
 
 
 def rollout(policy_dir, reward, split: str, episodes: int, seed: int, deterministic: bool) -> dict:
-    """Per next state of ``episodes`` episodes: stage, tanh(D_k) for every k, dense reward, episode index."""
+    """Per next state of ``episodes`` episodes: stage, tanh(D_k) for every k, dense reward; and the success rate."""
     from omegaconf import OmegaConf
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
@@ -47,9 +47,9 @@ def rollout(policy_dir, reward, split: str, episodes: int, seed: int, determinis
                           control_mode=cfg.env.control_mode, max_episode_steps=cfg.env.max_episode_steps)
     actor, _ = load_policy(policy_dir, env.observation_spec, env.action_spec, family=family.name)
     mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
-    cols = {"stage": [], "tanh_d": [], "dense": [], "episode": [], "success": []}
+    cols = {"stage": [], "tanh_d": [], "dense": [], "success": []}
     try:
-        for i in range(episodes):
+        for _ in range(episodes):
             with set_exploration_type(mode), torch.no_grad():
                 ep = env.rollout(100_000, actor, break_when_any_done=True, auto_reset=True)
             nxt = ep.get("next")
@@ -58,13 +58,11 @@ def rollout(policy_dir, reward, split: str, episodes: int, seed: int, determinis
             cols["stage"].append(nxt.get("stage").reshape(-1).numpy())
             cols["tanh_d"].append(torch.tanh(logits).reshape(len(nxt), -1).numpy())
             cols["dense"].append(nxt.get("reward").reshape(-1).numpy())
-            cols["episode"].append(np.full(len(nxt), i))
             cols["success"].append(bool(nxt.get("success").any()))
     finally:
         env.close()
     return {"stage": np.concatenate(cols["stage"]), "tanh_d": np.concatenate(cols["tanh_d"]),
-            "dense": np.concatenate(cols["dense"]), "episode": np.concatenate(cols["episode"]),
-            "success_rate": float(np.mean(cols["success"])), "num_stages": reward.num_stages}
+            "dense": np.concatenate(cols["dense"]), "success_rate": float(np.mean(cols["success"])), "num_stages": reward.num_stages}
 
 
 def summarize(data: dict) -> list[dict]:
@@ -95,6 +93,7 @@ def main(argv=None) -> int:
 
     quiet_libraries()
     torch.set_num_threads(1)
+    torch.manual_seed(a.seed)  # the sampled actions; the env's initial states are seeded by make_family_env
     reward = load_reward(a.reward)
     if not isinstance(reward, DrSReward):
         p.error(f"{a.reward} is not a DrS reward")
