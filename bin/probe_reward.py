@@ -12,6 +12,12 @@ leaves the agent in stage k with the semi-sparse staircase alone.
         --out results/reuse/pick_cube/probe
 
 Writes ``probe.json``, ``probe.md`` and ``probe.png`` (tanh(D_k) against the dense reward, per stage and split).
+
+``--swap-with RUN_DIR`` also asks which inputs drive ``D_k``: it rolls out a second policy on the first split,
+and for each group of input columns (the family's observation layout where it names one, e.g. joint
+velocities; else one group per input key) puts the second policy's values into the first's stage-k states
+(and the other way round), and reports the mean ``tanh(D_k)`` after each swap (``feature_swap.md/json``).
+A group whose swap moves the score from one policy's level to the other's is what ``D_k`` reads.
 """
 import argparse
 import json
@@ -38,23 +44,26 @@ def rollout(policy_dir, reward, split: str, episodes: int, seed: int, determinis
 
     from drs_torchrl.envs.factory import make_family_env
     from drs_torchrl.models import load_policy
-    from drs_torchrl.tasks import family_from_config
+    from drs_torchrl.tasks import TASK_OBSERVATION_KEY, family_from_config, with_task_observation
 
     cfg = OmegaConf.load(Path(policy_dir) / "config.yaml")
-    family = family_from_config(cfg.env)
+    # a reward that reads the task state gets it from the env, whatever the policy's run had
+    family = with_task_observation(family_from_config(cfg.env), TASK_OBSERVATION_KEY in reward.reward_in_keys)
     overrides = OmegaConf.to_container(cfg.env.variant_overrides) or None
     env = make_family_env(family, split, seed=seed, variant_overrides=overrides, reward_mode="normalized_dense",
                           control_mode=cfg.env.control_mode, max_episode_steps=cfg.env.max_episode_steps)
     actor, _ = load_policy(policy_dir, env.observation_spec, env.action_spec, family=family.name)
     mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
-    cols = {"stage": [], "tanh_d": [], "dense": [], "success": []}
+    cols = {"stage": [], "tanh_d": [], "dense": [], "success": [], "features": []}
     try:
         for _ in range(episodes):
             with set_exploration_type(mode), torch.no_grad():
                 ep = env.rollout(100_000, actor, break_when_any_done=True, auto_reset=True)
             nxt = ep.get("next")
             with torch.no_grad():
-                logits = reward.discriminators(reward.features(nxt))
+                feats = reward.features(nxt).reshape(len(nxt), -1)
+                logits = reward.discriminators(feats)
+            cols["features"].append(feats)
             cols["stage"].append(nxt.get("stage").reshape(-1).numpy())
             cols["tanh_d"].append(torch.tanh(logits).reshape(len(nxt), -1).numpy())
             cols["dense"].append(nxt.get("reward").reshape(-1).numpy())
@@ -62,7 +71,37 @@ def rollout(policy_dir, reward, split: str, episodes: int, seed: int, determinis
     finally:
         env.close()
     return {"stage": np.concatenate(cols["stage"]), "tanh_d": np.concatenate(cols["tanh_d"]),
+            "features": torch.cat(cols["features"]), "family": family,
             "dense": np.concatenate(cols["dense"]), "success_rate": float(np.mean(cols["success"])), "num_stages": reward.num_stages}
+
+
+def feature_groups(family, reward) -> dict[str, tuple[int, int]]:
+    """Named column ranges of the reward's input vector: the family's observation layout for its
+    ``observation`` (``extra["observation_groups"]``), one group per other input key."""
+    groups, start = {}, 0
+    for key, size in reward.in_shapes.items():
+        layout = family.extra.get("observation_groups") if key == "observation" else None
+        if layout and max(e for _, e in layout.values()) == size:
+            groups.update({name: (start + a, start + b) for name, (a, b) in layout.items()})
+        else:
+            groups[str(key)] = (start, start + size)
+        start += size
+    return groups
+
+
+def feature_swap(score, fa: torch.Tensor, fb: torch.Tensor, groups: dict[str, tuple[int, int]], seed: int = 0) -> list[dict]:
+    """For each column group: mean ``score`` of ``fa`` with that group taken from random rows of ``fb``, and
+    of ``fb`` with it taken from ``fa``. ``score`` maps ``(n, d)`` features to ``(n,)`` values."""
+    g = torch.Generator().manual_seed(seed)
+    ia = torch.randint(len(fa), (len(fb),), generator=g)  # rows of fa that lend to fb
+    ib = torch.randint(len(fb), (len(fa),), generator=g)
+    rows = [{"group": "(none)", "a": float(score(fa).mean()), "b": float(score(fb).mean())}]
+    for name, (s, e) in groups.items():
+        x, y = fa.clone(), fb.clone()
+        x[:, s:e] = fb[ib, s:e]
+        y[:, s:e] = fa[ia, s:e]
+        rows.append({"group": name, "columns": [s, e], "a": float(score(x).mean()), "b": float(score(y).mean())})
+    return rows
 
 
 def summarize(data: dict) -> list[dict]:
@@ -86,6 +125,8 @@ def main(argv=None) -> int:
     p.add_argument("--episodes", type=int, default=20)
     p.add_argument("--deterministic", action="store_true", help="the mean action (default: sampled actions)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--swap-with", default=None, metavar="RUN_DIR",
+                   help="a second policy: swap input groups between its stage-k states and --policy's (first split)")
     p.add_argument("--out", type=Path, required=True)
     a = p.parse_args(argv)
     from drs_torchrl.console import quiet_libraries
@@ -105,6 +146,8 @@ def main(argv=None) -> int:
         report["splits"][split] = {"success_rate": data[split]["success_rate"], "stages": summarize(data[split])}
         print(f"{split}: success {data[split]['success_rate']:.2f}", file=sys.stderr)
     (a.out / "probe.json").write_text(json.dumps(report, indent=1))
+    if a.swap_with:
+        write_feature_swap(a, reward, data[a.splits[0]])
     lines = [f"Reward `{a.reward}` along {a.episodes} episodes ({report['actions']} actions) of the policy `{a.policy}`.",
              "Spearman: rank correlation of tanh(D_k(s')) with ManiSkill's normalized dense reward over the stage-k states.", "",
              "| split | policy success | stage k | states | tanh(D_k) mean [min, max] | Spearman vs dense |", "|---|---|---|---|---|---|"]
@@ -132,6 +175,34 @@ def main(argv=None) -> int:
     fig.savefig(a.out / "probe.png", dpi=110)
     print("\n".join(lines))
     return 0
+
+
+def write_feature_swap(a, reward, first: dict) -> None:
+    split = a.splits[0]
+    other = rollout(a.swap_with, reward, split, a.episodes, a.seed, a.deterministic)
+    groups = feature_groups(first["family"], reward)
+    out = {"reward": a.reward, "a": a.policy, "b": a.swap_with, "split": split, "episodes": a.episodes, "stages": []}
+    lines = [f"Which inputs drive `tanh(D_k)` of `{a.reward}`: stage-k states of A = `{a.policy}` and B = `{a.swap_with}`",
+             f"({a.episodes} episodes each, {split} split, {'deterministic' if a.deterministic else 'sampled'} actions). Each row puts",
+             "one group of B's input columns into A's states (random pairing) and A's into B's; mean tanh(D_k) after the swap.", ""]
+    for k in range(reward.num_stages):
+        ma, mb = first["stage"] == k, other["stage"] == k
+        if ma.sum() < 3 or mb.sum() < 3:
+            continue
+        fa, fb = first["features"][torch.as_tensor(ma)], other["features"][torch.as_tensor(mb)]
+
+        def score(f, k=k):
+            with torch.no_grad():
+                return torch.tanh(reward.discriminators(f))[..., k].reshape(-1)
+
+        rows = feature_swap(score, fa, fb, groups, a.seed)
+        out["stages"].append({"stage": k, "states_a": int(ma.sum()), "states_b": int(mb.sum()), "rows": rows})
+        lines += [f"**stage {k}** ({int(ma.sum())} states of A, {int(mb.sum())} of B)", "",
+                  "| input group swapped | A's states, mean tanh(D_k) | B's states, mean tanh(D_k) |", "|---|---|---|"]
+        lines += [f"| {r['group']} | {r['a']:.2f} | {r['b']:.2f} |" for r in rows] + [""]
+    (a.out / "feature_swap.json").write_text(json.dumps(out, indent=1))
+    (a.out / "feature_swap.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
 
 
 if __name__ == "__main__":

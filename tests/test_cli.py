@@ -169,3 +169,23 @@ def test_cuda_requested_without_cuda(tmp_path):
     assert p.returncode == 2 and "CUDA is not available" in p.stderr
     p = run("drs-learn", *TINY, "env.sim_backend=physx_cuda", "env.num_envs=16", f"hydra.run.dir={tmp_path / 'b'}", cwd=tmp_path)
     assert p.returncode == 2 and "CUDA is not available" in p.stderr
+
+
+def test_a_reward_on_the_task_state_only_learns_and_is_reused(tmp_path):
+    """reward.in_keys=[task_observation,stage_indicators]: the env writes the task state by itself (saved in
+    config.yaml), the discriminators read no joint positions or velocities, and drs-reuse turns it on again."""
+    learn, reuse = tmp_path / "learn", tmp_path / "reuse"
+    p = run("drs-learn", *TINY, *DISC, "reward.in_keys=[task_observation,stage_indicators]", f"hydra.run.dir={learn}", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr[-3000:]
+    from omegaconf import OmegaConf
+
+    assert OmegaConf.load(learn / "config.yaml").env.task_observation is True
+    reward = DrSReward.from_checkpoint(learn / "checkpoints" / "reward.pt")
+    assert reward.in_shapes == {"task_observation": 19, "stage_indicators": 3}
+    p = run("drs-reuse", *TINY, "env.split=test", "total_frames=384", f"reward.checkpoint={learn / 'checkpoints' / 'reward.pt'}",
+            f"hydra.run.dir={reuse}", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr[-3000:]
+    assert OmegaConf.load(reuse / "config.yaml").env.task_observation is True
+    rows = [x for x in csv.DictReader((reuse / "train.csv").open()) if x.get("reward_max")]
+    # the rescaled Eq. 4 with N = 3: (k + tanh(D_k)/3)/3 - 2, in [-2.12, 0)
+    assert rows and all(-2.12 <= float(x["reward_min"]) <= float(x["reward_max"]) < 0 for x in rows)

@@ -113,3 +113,37 @@ def test_spearman_of_the_probe_ranks_and_refuses_degenerate_inputs():
     x = np.array([0.1, 0.5, 0.2, 0.9])
     assert spearman(x, x ** 3) == pytest.approx(1.0) and spearman(x, -x) == pytest.approx(-1.0)
     assert np.isnan(spearman(x, np.ones(4))) and np.isnan(spearman(x[:2], x[:2]))
+
+
+def test_feature_swap_finds_the_inputs_a_score_reads():
+    """A score that reads column 2 only: swapping that group moves each side to the other's level, the rest do nothing."""
+    sys.path.insert(0, str(Path(__file__).parents[1] / "bin"))
+    import torch
+    from probe_reward import feature_swap
+
+    fa, fb = torch.zeros(50, 4), torch.zeros(40, 4)
+    fa[:, 2], fb[:, 2] = 1.0, -1.0
+    fa[:, 0], fb[:, 0] = torch.randn(50), torch.randn(40) + 5
+
+    rows = {r["group"]: r for r in feature_swap(lambda f: torch.tanh(f[:, 2]), fa, fb, {"x": (0, 2), "v": (2, 3), "g": (3, 4)})}
+    assert rows["(none)"]["a"] == pytest.approx(0.7616, abs=1e-3) and rows["(none)"]["b"] == pytest.approx(-0.7616, abs=1e-3)
+    assert rows["v"]["a"] == pytest.approx(-0.7616, abs=1e-3) and rows["v"]["b"] == pytest.approx(0.7616, abs=1e-3)
+    for g in ("x", "g"):
+        assert (rows[g]["a"], rows[g]["b"]) == (rows["(none)"]["a"], rows["(none)"]["b"])
+
+
+def test_feature_groups_name_every_column_of_the_pick_reward_input():
+    sys.path.insert(0, str(Path(__file__).parents[1] / "bin"))
+    from probe_reward import feature_groups
+
+    from drs_torchrl.tasks import get_family
+    from drs_torchrl.transforms import DrSReward
+
+    fam = get_family("pick_cube")
+    groups = feature_groups(fam, DrSReward(3, ["observation", "stage_indicators"], {"observation": 42, "stage_indicators": 3}))
+    spans = sorted(groups.values())
+    assert spans[0][0] == 0 and spans[-1][1] == 45 and all(a[1] == b[0] for a, b in zip(spans, spans[1:]))
+    assert groups["joint velocities"] == (9, 18) and groups["stage_indicators"] == (42, 45)
+    # an input the family names no layout for is one group
+    other = feature_groups(fam, DrSReward(3, ["task_observation", "stage_indicators"], {"task_observation": 19, "stage_indicators": 3}))
+    assert other == {"task_observation": (0, 19), "stage_indicators": (19, 22)}

@@ -201,6 +201,27 @@ def test_cross_robot_reward_reads_robot_agnostic_entries_and_fits_every_robot():
             e.close()
 
 
+@pytest.mark.parametrize("name", ["pick_cube", "pick_and_place"])
+def test_env_task_observation_adds_the_task_state_to_the_pick_envs(name):
+    """env.task_observation=true: the env also writes the 19-number task state (spec-checked); off by default."""
+    from drs_torchrl.tasks import family_from_config
+
+    with initialize_config_dir(config_dir=str(CONF), version_base=None):
+        off = family_from_config(compose("learn", overrides=[f"env={name}"]).env)
+        on = family_from_config(compose("learn", overrides=[f"env={name}", "env.task_observation=true"]).env)
+    assert off.task_observation_key is None and on.task_observation_key == "task_observation"
+    env = make_family_env(on, "test", seed=0)
+    try:
+        check_env_specs(env)
+        td = env.rollout(3)
+        obs, task = td["next", "observation"], td["next", "task_observation"]
+        assert task.shape == (3, 19)
+        # the task state's object-to-goal vector is the observation's (ManiSkill's obj_to_goal_pos, its last 3 numbers)
+        assert torch.allclose(task[:, 16:19], obs[:, 39:42], atol=1e-5)
+    finally:
+        env.close()
+
+
 def test_every_family_has_a_config_and_asset_families_are_registered():
     with initialize_config_dir(config_dir=str(CONF), version_base=None):
         for name in list_families():

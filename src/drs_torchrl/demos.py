@@ -46,7 +46,7 @@ import torch
 from tensordict import TensorDict
 
 from drs_torchrl.data.persistence import load_memmap_checked
-from drs_torchrl.tasks import TaskFamily, get_family, with_stages
+from drs_torchrl.tasks import TaskFamily, get_family, with_stages, with_task_observation
 from drs_torchrl.transforms.stages import StageIndicator
 
 DEMO_FORMAT = "drs-torchrl/demos"
@@ -169,7 +169,7 @@ def record_demos(family: TaskFamily, variant: str, num: int, *, seed: int = 0, v
 
 def record_policy_demos(policy_path: str | Path, variant: str | None = None, num: int = 100, *, seed: int = 0,
                         variant_overrides: dict | None = None, deterministic: bool = True, max_episodes: int | None = None,
-                        progress: bool = True) -> tuple[TensorDict, dict]:
+                        progress: bool = True, task_observation: bool = False) -> tuple[TensorDict, dict]:
     """Roll out a trained ``drs-learn``/``drs-reuse`` policy until ``num`` episodes succeed; returns (states, meta).
 
     The env is the family's (``make_family_env``) with the run's controller, episode length and
@@ -194,6 +194,7 @@ def record_policy_demos(policy_path: str | Path, variant: str | None = None, num
         if env_cfg.get("family", family.name) != family.name:
             env_cfg = {}
     family = with_stages(family, env_cfg.get("stages"))  # a stage-ablation run observes only its stages
+    family = with_task_observation(family, env_cfg.get("task_observation") or task_observation)
     overrides = {**(env_cfg.get("variant_overrides") or {}), **(variant_overrides or {})}
     variant = variant or env_cfg.get("split") or "train"  # default: the split the policy was trained on
     env = make_family_env(family, variant, variant_overrides=overrides or None, seed=seed,
@@ -647,6 +648,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--control-mode", default=None, help="solver demonstrations: replay them in this controller "
                    "(e.g. pd_ee_delta_pos, the agent's; default: the family's) with ManiSkill's converter; "
                    "pd_joint_pos keeps the planner's own")
+    p.add_argument("--task-observation", action="store_true", help="also record the env's robot-agnostic task state "
+                   "(key task_observation), for rewards learned with env.task_observation=true "
+                   "reward.in_keys=[task_observation,stage_indicators]")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=None, help="default: demos/<family>-<variant>.demos "
                    "(-policy.demos with --from-policy)")
@@ -669,10 +673,10 @@ def main(argv: list[str] | None = None) -> int:
         if a.from_policy is not None:  # a bad checkpoint raises PolicyCheckpointError, a ValueError
             states, meta = record_policy_demos(a.from_policy, a.variant, a.num or 100, seed=a.seed,
                                                variant_overrides=overrides, deterministic=not a.stochastic,
-                                               max_episodes=a.max_episodes)
+                                               max_episodes=a.max_episodes, task_observation=a.task_observation)
             fam = get_family(meta["family"])
         else:
-            fam = get_family(a.family)
+            fam = with_task_observation(get_family(a.family), a.task_observation)
             if a.from_h5 is not None:
                 states, meta = load_maniskill_h5(a.from_h5, fam, a.variant or "train", num=a.num)
             else:

@@ -154,7 +154,8 @@ def family_from_config(env_cfg) -> TaskFamily:
     defines itself (``env=custom env.family=NAME env.env_id=... env.stage_keys=[...]``), which is
     registered under its name so that checkpoints and reuse find it."""
     if env_cfg.get("env_id") is None:
-        return with_stages(get_family(env_cfg.family), env_cfg.get("stages"))
+        return with_task_observation(with_stages(get_family(env_cfg.family), env_cfg.get("stages")),
+                                     env_cfg.get("task_observation"))
     name = str(env_cfg.family)
     if name in _FAMILIES and not _FAMILIES[name].extra.get("from_config"):
         raise ValueError(f"env.family={name!r} is a built-in family; give the family defined in config another name "
@@ -181,7 +182,7 @@ def family_from_config(env_cfg) -> TaskFamily:
         )
     except ValueError as exc:
         raise ValueError(f"env=custom: {exc} (set env.stage_keys, env.variants, env.train_variants, env.test_variants)") from None
-    return with_stages(register_family(family), env_cfg.get("stages"))
+    return with_task_observation(with_stages(register_family(family), env_cfg.get("stages")), env_cfg.get("task_observation"))
 
 
 def with_stages(family: TaskFamily, stages) -> TaskFamily:
@@ -203,6 +204,23 @@ def with_stages(family: TaskFamily, stages) -> TaskFamily:
         return family
     return dataclasses.replace(family, stage_keys=stages, info_keys=family.all_info_keys,
                                extra={**family.extra, "stage_subset_of": list(family.stage_keys)})
+
+
+TASK_OBSERVATION_KEY = "task_observation"
+
+
+def with_task_observation(family: TaskFamily, on) -> TaskFamily:
+    """``family`` whose env also writes its robot-agnostic task state under ``task_observation``
+    (``env.task_observation=true``; the pick families' envs have one: object pose, goal, TCP position and
+    the vectors between them, no joint positions or velocities). A reward learned with
+    ``reward.in_keys=[task_observation,stage_indicators]`` cannot key on the robot's joints, e.g. on the
+    joint velocities that a success which needs a static robot makes tell-tale (results/reuse/pick_cube/)."""
+    if not on or family.task_observation_key:
+        return family
+    if family.backend != "maniskill":
+        raise ValueError(f"env.task_observation=true needs one of drs-torchrl's ManiSkill task envs; family "
+                         f"{family.name!r} runs on {family.backend}")
+    return dataclasses.replace(family, task_observation_key=TASK_OBSERVATION_KEY)
 
 
 # one module per family; each registers itself on import

@@ -5,6 +5,14 @@
 """
 from drs_torchrl.tasks import TaskFamily, register_family
 
+# column ranges of ManiSkill's PickCube state observation with the Panda (42 numbers): the agent's qpos and
+# qvel, then the task's extras in ManiSkill's order; names the inputs in bin/probe_reward.py --swap-with
+PANDA_PICK_OBSERVATION_GROUPS = {
+    "arm joint positions": (0, 7), "finger joint positions": (7, 9), "joint velocities": (9, 18),
+    "is_grasped": (18, 19), "TCP pose": (19, 26), "goal position": (26, 29), "object pose": (29, 36),
+    "TCP to object": (36, 39), "object to goal": (39, 42),
+}
+
 register_family(
     TaskFamily(
         name="pick_cube",
@@ -22,6 +30,7 @@ register_family(
         train_variants=("cube_2cm", "cube_2_5cm"),
         test_variants=("cube_1_5cm", "cube_1_75cm"),
         pooled=True,
-        extra={"demo_solver": "mani_skill.examples.motionplanning.panda.solutions.pick_cube:solve"},
+        extra={"demo_solver": "mani_skill.examples.motionplanning.panda.solutions.pick_cube:solve",
+               "observation_groups": PANDA_PICK_OBSERVATION_GROUPS},
     )
 )

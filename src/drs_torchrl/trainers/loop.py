@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import torch
 from hydra.utils import get_class
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 from tensordict import TensorDict
 from torchrl import timeit
 from torchrl.collectors import AsyncCollector, MultiCollector
@@ -50,7 +50,7 @@ from drs_torchrl.trainers.factories import (
     make_reward_learner,
     make_sac_agent,
 )
-from drs_torchrl.tasks import family_from_config
+from drs_torchrl.tasks import TASK_OBSERVATION_KEY, family_from_config
 
 
 class ConfigError(ValueError):
@@ -197,9 +197,13 @@ class Trainer:
         if cfg.algo.get("precision") == "auto":  # saved resolved: a resume on another machine keeps this run's numerics
             cfg.algo.precision = self.precision
         self._grad_scaler = grad_scaler(self.precision, self.device)
+        self.reward = reward = reward_setup(cfg.reward, phase)
+        reads = list(cfg.reward.get("in_keys") or getattr(reward.frozen, "reward_in_keys", None) or ())
+        if TASK_OBSERVATION_KEY in reads and not cfg.env.get("task_observation"):
+            with open_dict(cfg):  # the reward reads the task state: the env writes it (saved in config.yaml)
+                cfg.env.task_observation = True
         self.family = family = family_from_config(cfg.env)
         self.num_stages = family.num_stages
-        self.reward = reward = reward_setup(cfg.reward, phase)
         self.env, self.eval_env, self._env_kwargs = make_envs(cfg, family, reward, self.device)
         self.num_demos = 0
         demos = None
