@@ -204,6 +204,37 @@ def test_demonstrations_fill_a_share_of_every_sac_batch(tmp_path, demos):
         Trainer(cfg(f"demos.path={wide_path}", "demos.sac_share=0.25"), "learn", tmp_path / "d")
 
 
+def test_demonstrations_in_the_sac_batch_only_leave_the_stage_buffers_to_the_agent(tmp_path, demos):
+    """demos.stage_buffers=false: the SAC batch still draws its share from the demonstrations, but the top
+    stage buffer (the discriminators' positives) holds none of them; without a SAC share it is refused."""
+    from hydra import compose, initialize_config_dir
+
+    from drs_torchrl.trainers.apps import conf_dir
+    from drs_torchrl.trainers.loop import ConfigError, Trainer
+
+    def cfg(*extra):
+        with initialize_config_dir(config_dir=conf_dir(), version_base=None):
+            return compose("learn", overrides=[*TINY, f"demos.path={demos}", *extra])
+
+    top = None
+    for filed in (True, False):
+        tr = Trainer(cfg("demos.sac_share=0.25", f"demos.stage_buffers={str(filed).lower()}"), "learn", tmp_path / f"run{filed}")
+        try:
+            assert tr._demo_batch == 8
+            n_top = int(tr.learner.stage_buffers.stage_counts()[-1])
+            if filed:
+                top = n_top
+                assert tr.learner.num_demos > 0 and n_top > 0
+            else:
+                assert tr.learner.num_demos == 0 and n_top == 0 and top > 0
+        finally:
+            tr.close()
+    with pytest.raises(ConfigError, match="would not be used at all; set demos.sac_share=0.25"):
+        Trainer(cfg("demos.sac_share=0", "demos.stage_buffers=false"), "learn", tmp_path / "none")
+    with pytest.raises(ConfigError, match="demos.stage_buffers=false is for drs-learn reward=drs"):
+        Trainer(cfg("demos.sac_share=0.25", "demos.stage_buffers=false", "reward=vice_raq"), "learn", tmp_path / "vice")
+
+
 def test_sac_share_auto_shares_where_the_demonstrations_allow_and_says_why_not(tmp_path, demos, capsys):
     """demos.sac_share=auto (the default): AUTO_SAC_SHARE of each SAC batch where the demonstrations carry
     the agent's actions, 0 (with the reason on the console) where they do not; the choice is saved resolved."""

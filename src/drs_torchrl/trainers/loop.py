@@ -129,6 +129,9 @@ def validate_config(cfg: DictConfig, phase: str) -> None:
         if not ok:
             raise ConfigError(msg)
     requested_sac_share(cfg)
+    if not (cfg.get("demos") or {}).get("stage_buffers", True) and (phase != "learn" or cfg.reward.name != "drs"):
+        raise ConfigError("demos.stage_buffers=false is for drs-learn reward=drs (the demonstrations in the SAC batch "
+                          f"only); this run is drs-{phase} reward={cfg.reward.name}")
     stop = cfg.get("stop_at_success")
     if stop is not None and (isinstance(stop, bool) or not isinstance(stop, (int, float)) or not 0 <= stop <= 1):
         raise ConfigError(f"stop_at_success must be null or a success rate in [0, 1], got {stop!r}; e.g. stop_at_success=0.8")
@@ -215,9 +218,12 @@ class Trainer:
             demos = self._demonstrations(cfg, family) if (not resume or reward.name != "drs" or asked != 0) else None
             # step_fn is not a bound method: a learner -> trainer reference cycle would keep the collector (and
             # TorchRL's weight-sync scheme, whose __del__ deadlocks at interpreter exit) alive until then
+            # demos.stage_buffers=false: the demonstrations feed the SAC batch only, so the discriminators'
+            # positives are the agent's own successes (no "moves like the demonstrator" shortcut; results/reuse/pick_cube/)
+            filed = demos if bool((cfg.get("demos") or {}).get("stage_buffers", True)) else None
             self.learner = make_reward_learner(cfg, family, self.env, self.device, self.precision,
                                                functools.partial(backward_and_step, self._grad_scaler),
-                                               demos=None if (resume and reward.name == "drs") else demos)
+                                               demos=None if (resume and reward.name == "drs") else filed)
             reward.learned = self.learner.reward
         self.learned = reward.learned
 
@@ -234,6 +240,10 @@ class Trainer:
         # (its storage lives on the learner's device, where the reward transform runs)
         # (with demos.sac_share, the demonstrations' own buffer fills its share of each batch, the agent's the rest)
         self.demo_replay, self._demo_batch = self._demo_transitions(cfg, demos if self.learner is not None else None)
+        if demos and not (cfg.get("demos") or {}).get("stage_buffers", True) and self._demo_batch == 0:
+            raise ConfigError(f"demos.stage_buffers=false keeps the demonstrations out of the stage buffers, and demos.sac_share "
+                              f"is {cfg.demos.sac_share}: they would not be used at all; set demos.sac_share=0.25 "
+                              "(demonstrations with the agent's actions: drs-demos' default) or demos.stage_buffers=true")
         self.replay = make_replay_buffer(cfg, self.learned, self.device, int(cfg.algo.batch_size) - self._demo_batch)
         # the actor's intermediate outputs and the collector's bookkeeping are not stored: SACLoss
         # recomputes the former, nothing reads the latter, and every extra key costs at each sample
