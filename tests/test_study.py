@@ -129,7 +129,10 @@ def test_report_copies_the_record_and_compares_by_run_name(tmp_path, capsys):
     _fake_run(root / "drs_s1", "drs", 1, [0.2, 0.4], 3000, complete=True)   # still running (or interrupted)
     _fake_run(root / "one_stage_s0", "drs", 0, [0.0, 0.0, 0.0], 3000)
     # sparse_s0 has not started
-    (root / "drs_s0" / "summary.json").write_text(json.dumps({"frames": 3000, "interrupted": False}))
+    for name in ("drs_s0", "one_stage_s0", "learn_s0"):
+        (root / name / "summary.json").write_text(json.dumps({"frames": 3000, "interrupted": False}))
+    # finished early on its own criterion (stop_at_success), 1k steps
+    (root / "dense-train_s0" / "summary.json").write_text(json.dumps({"frames": 1000, "interrupted": False, "stopped_at_success": True}))
     out = tmp_path / "results"
     assert main([str(study), "--report", str(out)]) == 0
     # the record, never the training state; the checkout's absolute path is gone from the copies
@@ -141,10 +144,12 @@ def test_report_copies_the_record_and_compares_by_run_name(tmp_path, capsys):
     assert "| `drs_s1` | reuse | resumable | 2,000 (3000) | 0.40 at 2000 |" in status
     assert "| `sparse_s0` | reuse | new | 0 (3000) | - |" in status
     md = (out / "compare.md").read_text()
-    assert "| drs | 2 (0, 1) |" in md and "| one_stage | 1 (0) |" in md and "learn" not in md.split("Runs:")[0]
+    # the comparison holds the finished runs: drs_s1, still going, is in status.md and run_files but would cut the horizon
+    assert "| drs | 1 (0) |" in md and "| one_stage | 1 (0) |" in md and "learn" not in md.split("Runs:")[0]
+    assert "drs_s1" not in md
     assert (out / "compare.png").is_file() and (out / "learn" / "compare.md").is_file()
-    # a reuse run on another split is compared apart: the held-out runs' AUC horizon is theirs (2k, drs_s1), not its 1k
-    assert "dense-train" not in md and "success AUC to 2k" in md
+    # a reuse run on another split is compared apart: the held-out runs' AUC horizon is theirs (3k), not its 1k
+    assert "dense-train" not in md and "success AUC to 3k" in md
     assert "| dense-train | 1 (0) |" in (out / "on_train" / "compare.md").read_text()
     # a report into the run root would mix the record with the runs
     assert main([str(study), "--report", str(root / "r")]) == 2
@@ -188,7 +193,8 @@ def test_a_fresh_checkout_skips_what_its_record_holds_and_reuses_its_rewards(tmp
     assert "| `dense_s0` | reuse | new | 0 (3000) | - |" in status
     assert (out / "run_files" / "learn_s0" / "reward.pt").read_bytes() == b"reward"
     assert (out / "run_files" / "learn_s0" / "policy.pt").read_bytes() == b"policy"
-    assert "| sparse | 1 (0) |" in (out / "compare.md").read_text()
+    # its only reuse run is an unfinished record: nothing to compare yet
+    assert not (out / "compare.md").exists()
     capsys.readouterr()
     assert main([str(study), "--status"]) == 0
     assert "  recorded  " in capsys.readouterr().out

@@ -38,9 +38,9 @@ saves its training state) and the study exits 130/143; re-invoke it to continue.
 keeps the record OUT already holds) and writes
 what a results folder commits, never training states: ``OUT/run_files/<run>/`` (``train.csv``,
 ``eval.csv``, ``config.yaml``, ``summary.json``; a phase-1 run's ``reward.pt`` and ``policy.pt`` too), ``OUT/status.md``
-(each run's state, env steps and last evaluation), and ``drs-compare`` of the phase-2 runs into ``OUT/``
-and of the phase-1 runs into ``OUT/learn/``, grouped by run name without its seed (``drs_s0``,
-``drs_s1`` -> ``drs``).
+(each run's state, env steps and last evaluation), and ``drs-compare`` of the finished phase-2 runs into
+``OUT/`` and of the finished phase-1 runs into ``OUT/learn/`` (a run still going would cut every curve's
+horizon), grouped by run name without its seed (``drs_s0``, ``drs_s1`` -> ``drs``).
 """
 from __future__ import annotations
 
@@ -271,7 +271,7 @@ def report(root: Path, runs: list[Run], out: Path, study_file: str | Path = "",
         if state == "new" and (dst / "train.csv").is_file():
             state = "new (an unfinished earlier record)"  # its training state is gone: it starts again
         rows.append(f"| `{r.name}` | {r.app} | {state} | {_frames(shown):,} ({asked if asked else 'its default'}) | {_last_eval(shown)} |")
-        if (dst / "config.yaml").is_file():
+        if (dst / "config.yaml").is_file() and state in DONE:  # the comparison: finished runs only (status.md has the rest)
             copied[r.app].append(dst)
     paths = {"status": out / "status.md"}
     head = f"Written by `drs-study {study_file} --report {out}`; states as `drs-study --status` sees them.\n\n"
