@@ -76,11 +76,11 @@ def rollout(policy_dir, reward, split: str, episodes: int, seed: int, determinis
 
 
 def feature_groups(family, reward) -> dict[str, tuple[int, int]]:
-    """Named column ranges of the reward's input vector: the family's observation layout for its
-    ``observation`` (``extra["observation_groups"]``), one group per other input key."""
+    """Named column ranges of the reward's input vector: the family's layout of an input key where it names
+    one (``extra["<key>_groups"]``, e.g. ``observation_groups``), else one group per input key."""
     groups, start = {}, 0
     for key, size in reward.in_shapes.items():
-        layout = family.extra.get("observation_groups") if key == "observation" else None
+        layout = family.extra.get(f"{key}_groups") if isinstance(key, str) else None
         if layout and max(e for _, e in layout.values()) == size:
             groups.update({name: (start + a, start + b) for name, (a, b) in layout.items()})
         else:

@@ -144,6 +144,8 @@ def test_feature_groups_name_every_column_of_the_pick_reward_input():
     spans = sorted(groups.values())
     assert spans[0][0] == 0 and spans[-1][1] == 45 and all(a[1] == b[0] for a, b in zip(spans, spans[1:]))
     assert groups["joint velocities"] == (9, 18) and groups["stage_indicators"] == (42, 45)
+    task = feature_groups(fam, DrSReward(3, ["task_observation", "stage_indicators"], {"task_observation": 19, "stage_indicators": 3}))
+    assert task["object to goal"] == (16, 19) and task["stage_indicators"] == (19, 22)
     # an input the family names no layout for is one group
-    other = feature_groups(fam, DrSReward(3, ["task_observation", "stage_indicators"], {"task_observation": 19, "stage_indicators": 3}))
-    assert other == {"task_observation": (0, 19), "stage_indicators": (19, 22)}
+    valve = feature_groups(get_family("turn_valve"), DrSReward(2, ["observation", "stage_indicators"], {"observation": 30, "stage_indicators": 2}))
+    assert valve == {"observation": (0, 30), "stage_indicators": (30, 32)}

@@ -13,7 +13,7 @@ Stage indicators (Appendix A): ``is_grasped`` (both fingers touch the object wit
 < 0.2 rad/s) and object static (< 3 cm/s; ``object_static_thresh``).
 """
 from drs_torchrl.tasks import TaskFamily, register_family
-from drs_torchrl.tasks.pick_cube import PANDA_PICK_OBSERVATION_GROUPS
+from drs_torchrl.tasks.pick_cube import PANDA_PICK_OBSERVATION_GROUPS, PICK_TASK_OBSERVATION_GROUPS
 
 
 def _obj(shape, size):
@@ -48,6 +48,6 @@ register_family(
         test_variants=tuple(TEST_OBJECTS),
         pooled=True,
         extra={"demo_solver": "mani_skill.examples.motionplanning.panda.solutions.pick_cube:solve", "demo_settle_steps": 20,
-               "observation_groups": PANDA_PICK_OBSERVATION_GROUPS},
+               "observation_groups": PANDA_PICK_OBSERVATION_GROUPS, "task_observation_groups": PICK_TASK_OBSERVATION_GROUPS},
     )
 )

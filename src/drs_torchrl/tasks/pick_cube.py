@@ -12,6 +12,11 @@ PANDA_PICK_OBSERVATION_GROUPS = {
     "is_grasped": (18, 19), "TCP pose": (19, 26), "goal position": (26, 29), "object pose": (29, 36),
     "TCP to object": (36, 39), "object to goal": (39, 42),
 }
+# and of PickObjectEnv.task_observation() (19 numbers, positions in the workspace frame)
+PICK_TASK_OBSERVATION_GROUPS = {
+    "object position": (0, 3), "object orientation": (3, 7), "goal position": (7, 10), "TCP position": (10, 13),
+    "TCP to object": (13, 16), "object to goal": (16, 19),
+}
 
 register_family(
     TaskFamily(
@@ -31,6 +36,6 @@ register_family(
         test_variants=("cube_1_5cm", "cube_1_75cm"),
         pooled=True,
         extra={"demo_solver": "mani_skill.examples.motionplanning.panda.solutions.pick_cube:solve",
-               "observation_groups": PANDA_PICK_OBSERVATION_GROUPS},
+               "observation_groups": PANDA_PICK_OBSERVATION_GROUPS, "task_observation_groups": PICK_TASK_OBSERVATION_GROUPS},
     )
 )
