@@ -210,6 +210,10 @@ def test_env_task_observation_adds_the_task_state_to_the_pick_envs(name):
         off = family_from_config(compose("learn", overrides=[f"env={name}"]).env)
         on = family_from_config(compose("learn", overrides=[f"env={name}", "env.task_observation=true"]).env)
     assert off.task_observation_key is None and on.task_observation_key == "task_observation"
+    from drs_torchrl.tasks import with_task_observation
+
+    with pytest.raises(ValueError, match="family 'turn_valve' has no task state; the families that have one: .*'pick_cube'"):
+        with_task_observation(get_family("turn_valve"), True)
     env = make_family_env(on, "test", seed=0)
     try:
         check_env_specs(env)

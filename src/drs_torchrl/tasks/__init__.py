@@ -217,9 +217,10 @@ def with_task_observation(family: TaskFamily, on) -> TaskFamily:
     joint velocities that a success which needs a static robot makes tell-tale (results/reuse/pick_cube/)."""
     if not on or family.task_observation_key:
         return family
-    if family.backend != "maniskill":
-        raise ValueError(f"env.task_observation=true needs one of drs-torchrl's ManiSkill task envs; family "
-                         f"{family.name!r} runs on {family.backend}")
+    if not family.extra.get("task_observation_groups"):  # the families whose env has a task_observation()
+        have = [f.name for f in _FAMILIES.values() if f.extra.get("task_observation_groups") or f.task_observation_key]
+        raise ValueError(f"env.task_observation=true (or a reward that reads {TASK_OBSERVATION_KEY!r}): family "
+                         f"{family.name!r} has no task state; the families that have one: {sorted(have)}")
     return dataclasses.replace(family, task_observation_key=TASK_OBSERVATION_KEY)
 
 
