@@ -100,7 +100,9 @@ def feature_swap(score, fa: torch.Tensor, fb: torch.Tensor, groups: dict[str, tu
         x, y = fa.clone(), fb.clone()
         x[:, s:e] = fb[ib, s:e]
         y[:, s:e] = fa[ia, s:e]
-        rows.append({"group": name, "columns": [s, e], "a": float(score(x).mean()), "b": float(score(y).mean())})
+        rows.append({"group": name, "columns": [s, e], "a": float(score(x).mean()), "b": float(score(y).mean()),
+                     # how the two sides differ there: the mean Euclidean norm of the group's values
+                     "norm_a": float(fa[:, s:e].norm(dim=-1).mean()), "norm_b": float(fb[:, s:e].norm(dim=-1).mean())})
     return rows
 
 
@@ -198,8 +200,10 @@ def write_feature_swap(a, reward, first: dict) -> None:
         rows = feature_swap(score, fa, fb, groups, a.seed)
         out["stages"].append({"stage": k, "states_a": int(ma.sum()), "states_b": int(mb.sum()), "rows": rows})
         lines += [f"**stage {k}** ({int(ma.sum())} states of A, {int(mb.sum())} of B)", "",
-                  "| input group swapped | A's states, mean tanh(D_k) | B's states, mean tanh(D_k) |", "|---|---|---|"]
-        lines += [f"| {r['group']} | {r['a']:.2f} | {r['b']:.2f} |" for r in rows] + [""]
+                  "| input group swapped | A's states, mean tanh(D_k) | B's states, mean tanh(D_k) | mean norm of the group, A / B |",
+                  "|---|---|---|---|"]
+        lines += [f"| {r['group']} | {r['a']:.2f} | {r['b']:.2f} | "
+                  + (f"{r['norm_a']:.3g} / {r['norm_b']:.3g} |" if "norm_a" in r else "- |") for r in rows] + [""]
     (a.out / "feature_swap.json").write_text(json.dumps(out, indent=1))
     (a.out / "feature_swap.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

@@ -130,6 +130,8 @@ def test_feature_swap_finds_the_inputs_a_score_reads():
     assert rows["v"]["a"] == pytest.approx(-0.7616, abs=1e-3) and rows["v"]["b"] == pytest.approx(0.7616, abs=1e-3)
     for g in ("x", "g"):
         assert (rows[g]["a"], rows[g]["b"]) == (rows["(none)"]["a"], rows["(none)"]["b"])
+    assert rows["v"]["norm_a"] == pytest.approx(1.0) and rows["v"]["norm_b"] == pytest.approx(1.0)
+    assert rows["g"]["norm_a"] == 0.0
 
 
 def test_feature_groups_name_every_column_of_the_pick_reward_input():
