@@ -206,3 +206,31 @@ def test_a_reward_reference_must_be_among_the_runs_needs(tmp_path):
                                                           {"name": "a", "args": ["reward.checkpoint=<reward:learn>"]}]}))
     with pytest.raises(StudyError, match="<policy:learn> but does not list"):
         load_study(write(tmp_path, {"root": "r", "runs": [{"name": "learn"}, {"name": "a", "args": ["init_from=<policy:learn>"]}]}))
+
+
+def test_a_run_with_a_bad_override_or_missing_file_stops_the_study_before_anything_starts(tmp_path, capsys):
+    from drs_torchrl.study import main
+
+    good = {"name": "ok", "args": ["total_frames=1000"]}
+    reuse = {"name": "reuse", "app": "reuse", "args": ["reward=drs", "reward.checkpoint=<reward:ok>"], "needs": ["ok"]}
+    spec = {"root": str(tmp_path / "runs"), "common": ["env=turn_valve"], "runs": [
+        good, reuse,  # a checkpoint another run will write need not exist yet
+        {"name": "typo", "args": ["algo.gama=0.9"]},
+        {"name": "no_demos", "args": [f"demos.path={tmp_path / 'missing.demos'}"]},
+        {"name": "bad_value", "args": ["stop_at_success=2"]},
+        {"name": "no_ablation", "args": ["+ablation=nope"]},
+    ]}
+    f = write(tmp_path, spec)
+    assert main([str(f), "--check"]) == 2
+    out = capsys.readouterr().out
+    lines = {ln.split()[1].rstrip(":"): ln for ln in out.splitlines()}
+    assert lines["ok"].split()[0] == "ok" and lines["reuse"].split()[0] == "ok"
+    assert "algo.gama" in lines["typo"] and "missing.demos: no such file" in lines["no_demos"]
+    assert "stop_at_success must be" in lines["bad_value"] and "ablation/nope" in lines["no_ablation"]
+    # running the study refuses as a whole, names every bad run, and creates nothing
+    assert main([str(f)]) == 2
+    err = capsys.readouterr().err
+    assert all(f"run {n}:" in err for n in ("typo", "no_demos", "bad_value", "no_ablation")) and "nothing started" in err
+    assert not (tmp_path / "runs").exists()
+    # the good runs alone pass the check
+    assert main([str(f), "--check", "--only", "ok", "reuse"]) == 0

@@ -6,6 +6,7 @@ what has finished, so the same command is re-run across sessions until the study
 
     drs-study results/precision/study.yaml --jobs 2          # both cores, one torch thread per run
     drs-study results/precision/study.yaml --status          # what is done, what is left
+    drs-study results/precision/study.yaml --check           # every run's config composed and validated, nothing run
     drs-study results/precision/study.yaml --report results/precision   # the record to commit (below)
 
 Study file::
@@ -160,6 +161,39 @@ def resolve_args(run: Run, root: Path, record: Path | None) -> list[str]:
     return [_CHECKPOINT_REF.sub(where, a) for a in run.args]
 
 
+_FILE_ARGS = ("demos.path", "reward.checkpoint", "init_from")
+
+
+def check_run(run: Run, root: Path, record: Path | None) -> str | None:
+    """Compose ``run``'s config as ``drs-<app>`` would and validate it, without starting it: the
+    problem in one line, or None. Catches a bad override or a missing file before hours are queued
+    behind it (a checkpoint another run of the study will write is not required to exist yet)."""
+    from hydra import compose, initialize_config_dir
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    from drs_torchrl.tasks import family_from_config
+    from drs_torchrl.trainers import apps  # noqa: F401  (registers the resolvers the configs use)
+    from drs_torchrl.trainers.loop import ConfigError, validate_config
+
+    args = resolve_args(run, root, record)
+    for raw, arg in zip(run.args, args):
+        key, _, value = arg.partition("=")
+        written_by_needs = _CHECKPOINT_REF.search(raw) or any(
+            Path(value).resolve().is_relative_to((root / n).resolve()) for n in run.needs)
+        if key.lstrip("+") in _FILE_ARGS and value not in ("", "null") and not written_by_needs and not Path(value).exists():
+            return f"{key.lstrip('+')}={value}: no such file"
+    try:
+        with initialize_config_dir(config_dir=apps.conf_dir(), version_base=None):
+            cfg = compose(config_name=run.app, overrides=args)
+        validate_config(cfg, run.app)
+        family_from_config(cfg.env)
+    except (HydraException, OmegaConfBaseException, ConfigError, KeyError, ValueError) as exc:
+        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        return " ".join(str(msg).split()).split(" Config search path")[0]
+    return None
+
+
 def wanted_frames(run: Run) -> int | None:
     """The ``total_frames`` a study asks of a run (the last ``total_frames=`` of its arguments), or None."""
     values = [a.split("=", 1)[1] for a in run.args if a.split("=", 1)[0] == "total_frames"]
@@ -309,6 +343,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--threads", type=int, default=1, help="torch threads per run (default 1)")
     p.add_argument("--status", action="store_true", help="print each run's state and exit")
     p.add_argument("--only", nargs="*", default=None, help="run only these run names")
+    p.add_argument("--check", action="store_true",
+                   help="compose and validate every run's config (overrides, files, values) without running; exit 2 on a problem")
     p.add_argument("--report", type=Path, metavar="OUT", default=None,
                    help="write the study's record (run files, status.md, drs-compare figures) into OUT and exit")
     a = p.parse_args(argv)
@@ -339,8 +375,22 @@ def main(argv: list[str] | None = None) -> int:
         for r in runs:
             print(f"{states[r.name]:>10}  {root / r.name}")
         return 0
-    (root / "logs").mkdir(parents=True, exist_ok=True)
     pending = [r for r in runs if states[r.name] not in DONE]
+    problems = {r.name: check_run(r, root, record) for r in (runs if a.check else pending)}
+    if a.check:
+        for r in runs:
+            print(f"{'ok' if problems[r.name] is None else 'error':>6}  {r.name}" + (f": {problems[r.name]}" if problems[r.name] else ""))
+    bad = {n: p for n, p in problems.items() if p is not None}
+    if bad:
+        if not a.check:
+            for n, p in bad.items():
+                print(f"drs-study: error: run {n}: {p}", file=sys.stderr)
+            print(f"drs-study: nothing started: fix {len(bad)} run(s) in {a.study} (or leave them out with --only)",
+                  file=sys.stderr)
+        return 2
+    if a.check:
+        return 0
+    (root / "logs").mkdir(parents=True, exist_ok=True)
     for r in runs:
         if states[r.name] in DONE:
             print(f"drs-study: {r.name}: {states[r.name]}, skipped", flush=True)
