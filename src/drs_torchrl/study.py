@@ -179,10 +179,11 @@ def check_run(run: Run, root: Path, record: Path | None) -> str | None:
     args = resolve_args(run, root, record)
     for raw, arg in zip(run.args, args):
         key, _, value = arg.partition("=")
-        written_by_needs = _CHECKPOINT_REF.search(raw) or any(
-            Path(value).resolve().is_relative_to((root / n).resolve()) for n in run.needs)
-        if key.lstrip("+") in _FILE_ARGS and value not in ("", "null") and not written_by_needs and not Path(value).exists():
-            return f"{key.lstrip('+')}={value}: no such file"
+        key = key.lstrip("+")
+        if key not in _FILE_ARGS or value in ("", "null") or Path(value).exists() or _CHECKPOINT_REF.search(raw):
+            continue
+        if not any(Path(value).resolve().is_relative_to((root / n).resolve()) for n in run.needs):  # else a need writes it
+            return f"{key}={value}: no such file"
     try:
         with initialize_config_dir(config_dir=apps.conf_dir(), version_base=None):
             cfg = compose(config_name=run.app, overrides=args)
