@@ -52,6 +52,10 @@ def main() -> int:
                          "episode": torch.zeros(4, dtype=torch.long)}, [4])
     save_demos(states, {"format": "drs-torchrl/demos", "version": 1, "family": "pick_cube", "stage_keys": ["is_grasped", "is_obj_placed", "success"],
                         "shapes": {"observation": 40, "stage_indicators": 3}}, work / "wrong.demos")
+    # a study whose second run has a typo in an override: refused before any run starts
+    (work / "typo_study.yaml").write_text(
+        f"root: {work / 'typo_study_runs'}\napp: learn\ncommon: [{', '.join(TINY)}]\n"
+        "runs:\n  - {name: good, args: [seed=0]}\n  - {name: typo, args: [algo.batchsize=64]}\n")
 
     R = ["drs-reuse", *TINY]
     L = ["drs-learn", *TINY]
@@ -90,6 +94,7 @@ def main() -> int:
         ("drs-eval of a directory that is not a run", ["drs-eval", str(work / "nowhere")], {}),
         ("drs-eval on an unknown variant", ["drs-eval", str(good_run), "--split", "cube_9cm"], {}),
         ("drs-study with a malformed study file", ["drs-study", str(work / "other_family.pt")], {}),
+        ("drs-study with a typo in one run's overrides (nothing may start)", ["drs-study", str(work / "typo_study.yaml")], {}),
     ]
     rows = []
     for name, cmd, extra_env in cases:
@@ -107,7 +112,7 @@ def main() -> int:
                or " ".join(ln.strip() for ln in lines if ln.strip().startswith(("Could not", "Available options", "Key '")))
                or next((ln for ln in reversed(lines) if "Error:" in ln), None)
                or (lines[-1] if lines else ""))
-        untouched = digest(good_run) == before
+        untouched = digest(good_run) == before and not (work / "typo_study_runs").exists()
         rows.append((name, p.returncode, msg.strip()[:300], untouched))
         print(f"{p.returncode:3d}  {name}: {msg.strip()[:160]}", flush=True)
     out = ROOT / "results" / "bad_inputs" / "README.md"
