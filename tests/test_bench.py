@@ -63,3 +63,22 @@ def test_fewer_updates_rows_are_compared_with_the_plain_loop_at_the_same_samples
     md = render_markdown(res)
     assert "| phase 1, sac_cpu_utd025 (batch 512, UTD 0.25), inproc collector, bf16 | 130.0 | 32.5 | 1.30x | 0.90x |" in md
     assert "| plain single-file PyTorch DrS loop (batch 512, UTD 0.25, 2 discriminator steps per update), fp32 | 144.0 |" in md
+
+
+def test_bench_console_is_free_of_library_notices(tmp_path):
+    """drs-bench, like the training apps, filters ManiSkill's and TorchRL's routine notices (console.py)."""
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k not in ("RL_WARNINGS", "DRS_LIBRARY_MESSAGES", "DRS_QUIET_LIBRARIES")}
+    env["OMP_NUM_THREADS"] = "1"
+    cmd = [sys.executable, "-c", "import sys; from drs_torchrl.bench import main; sys.exit(main())",
+           "--raw-steps", "50", "--collect-steps", "64", "--learn-frames", "64", "--algos", "sac_cpu",
+           "--collect-collectors", "inproc", "--collectors", "inproc", "--precisions", "fp32", "--stage-sizes",
+           "--no-plain", "--no-compile", "--out", str(tmp_path / "bench")]
+    out = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    console = out.stdout + out.stderr
+    assert "raw simulator" in console and (tmp_path / "bench" / "bench.json").exists()
+    for noise in ("UserWarning", "Requested to use render device", "No initial pose set", "Initialized LazyTensorStorage"):
+        assert noise not in console, (noise, console[-2000:])

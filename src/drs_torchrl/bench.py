@@ -404,6 +404,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--checkpoint", type=int, default=0, metavar="N",
                    help="also measure the training-state checkpoint of a run holding N transitions (e.g. 1000000)")
     a = p.parse_args(argv)
+    from drs_torchrl.console import library_messages_requested, quiet_libraries
+
+    if not library_messages_requested():  # DRS_LIBRARY_MESSAGES=1 shows the libraries' notices again
+        quiet_libraries()
     from drs_torchrl.tasks import get_family
 
     fam = get_family(a.family)
