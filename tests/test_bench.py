@@ -73,7 +73,7 @@ def test_bench_console_is_free_of_library_notices(tmp_path):
     env = {k: v for k, v in os.environ.items() if k not in ("RL_WARNINGS", "DRS_LIBRARY_MESSAGES", "DRS_QUIET_LIBRARIES")}
     env["OMP_NUM_THREADS"] = "1"
     cmd = [sys.executable, "-c", "import sys; from drs_torchrl.bench import main; sys.exit(main())",
-           "--raw-steps", "50", "--collect-steps", "64", "--learn-frames", "64", "--algos", "sac_cpu",
+           "--raw-steps", "50", "--collect-steps", "64", "--learn-frames", "64", "--learning-starts", "256", "--algos", "sac_cpu",
            "--collect-collectors", "inproc", "--collectors", "inproc", "--precisions", "fp32", "--stage-sizes",
            "--no-plain", "--no-compile", "--out", str(tmp_path / "bench")]
     out = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=600)

@@ -398,6 +398,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="learner precisions of the phase-1 measurements (algo.precision); the plain loop is fp32")
     p.add_argument("--stage-sizes", nargs="*", type=int, default=[1_000, 10_000, 100_000, 1_000_000],
                    help="stage-buffer sizes for the sampling-time sweep (empty: skip the component timings)")
+    p.add_argument("--learning-starts", type=int, default=None, metavar="N",
+                   help="override algo.learning_starts, the untimed warm-up of the phase-1 rows (smoke runs only)")
     p.add_argument("--out", default="results/bench")
     p.add_argument("--no-plain", action="store_true", help="skip the plain single-file loop baseline")
     p.add_argument("--no-compile", action="store_true", help="skip the algo.compile=true timing of the components")
@@ -460,7 +462,9 @@ def main(argv: list[str] | None = None) -> int:
         for c in a.collectors:
             for prec in precisions:
                 print(f"phase 1, {algo}, {c} collector, {prec} ...", flush=True)
-                r = bench_learn(algo, a.learn_frames, [f"env={a.family}"], collector=c, precision=prec)
+                r = bench_learn(algo, a.learn_frames, [f"env={a.family}"] + ([] if a.learning_starts is None else
+                                                                                [f"algo.learning_starts={a.learning_starts}"]),
+                                    collector=c, precision=prec)
                 torch.set_num_threads(threads)
                 rows.append(r)
                 print(f"  {r['env_steps_per_s']:.1f} env steps/s, {r['updates_per_s']:.1f} updates/s", flush=True)
