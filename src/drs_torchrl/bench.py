@@ -413,6 +413,7 @@ def main(argv: list[str] | None = None) -> int:
     from drs_torchrl.tasks import get_family
 
     fam = get_family(a.family)
+    learn_overrides = [f"env={a.family}"] + ([] if a.learning_starts is None else [f"algo.learning_starts={a.learning_starts}"])
     kw = fam.variant_kwargs("train")
     threads = torch.get_num_threads()
     res: dict = {
@@ -462,9 +463,7 @@ def main(argv: list[str] | None = None) -> int:
         for c in a.collectors:
             for prec in precisions:
                 print(f"phase 1, {algo}, {c} collector, {prec} ...", flush=True)
-                r = bench_learn(algo, a.learn_frames, [f"env={a.family}"] + ([] if a.learning_starts is None else
-                                                                                [f"algo.learning_starts={a.learning_starts}"]),
-                                    collector=c, precision=prec)
+                r = bench_learn(algo, a.learn_frames, learn_overrides, collector=c, precision=prec)
                 torch.set_num_threads(threads)
                 rows.append(r)
                 print(f"  {r['env_steps_per_s']:.1f} env steps/s, {r['updates_per_s']:.1f} updates/s", flush=True)
