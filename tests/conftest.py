@@ -3,6 +3,14 @@ import os
 import pytest
 
 os.environ.setdefault("HYDRA_FULL_ERROR", "0")
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # `pytest -n N` (the README's test command): N workers side by side, each at one thread, the CLI runs
+    # they start included (a 2-thread process beside another collapses on a 2-core machine)
+    os.environ["OMP_NUM_THREADS"] = "1"
+    os.environ["MKL_NUM_THREADS"] = "1"
+    import torch
+
+    torch.set_num_threads(1)
 
 
 @pytest.fixture(scope="session")
