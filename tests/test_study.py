@@ -2,6 +2,7 @@
 import json
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -198,6 +199,39 @@ def test_a_fresh_checkout_skips_what_its_record_holds_and_reuses_its_rewards(tmp
     capsys.readouterr()
     assert main([str(study), "--status"]) == 0
     assert "  recorded  " in capsys.readouterr().out
+
+
+def test_a_run_another_study_call_is_training_is_neither_restarted_nor_deleted(tmp_path, capsys):
+    from drs_torchrl.study import main, pid_file
+
+    root = tmp_path / "runs"
+    f = write(tmp_path, {"root": str(root), "runs": [{"name": "a", "args": ["total_frames=1000"]}]})
+    (root / "a").mkdir(parents=True)
+    (root / "a" / "train.csv").write_text("step\n")  # started, no checkpoint yet: "broken" if nobody trains it
+    (root / "logs").mkdir()
+    # a stand-in for the training process, whose command line names the run's directory as drs-learn's does
+    proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)", f"hydra.run.dir={root / 'a'}"])
+    try:
+        for _ in range(200):  # until the child has exec'd the command above
+            if str(root / "a") in Path(f"/proc/{proc.pid}/cmdline").read_bytes().decode():
+                break
+            time.sleep(0.05)
+        pid_file(root, "a").write_text(f"{proc.pid}\n")
+        assert main([str(f), "--status"]) == 0
+        assert capsys.readouterr().out.split()[0] == "running"
+        assert main([str(f)]) == 0
+        assert f"a: being trained by another call (pid {proc.pid}), skipped" in capsys.readouterr().out
+        assert (root / "a" / "train.csv").is_file()  # not deleted as broken, not started a second time
+        assert not (root / "logs" / "a.log").exists()
+    finally:
+        proc.kill()
+        proc.wait()
+    # once that process is gone (or the pid names another program) the run is the study's again
+    assert main([str(f), "--status"]) == 0
+    assert capsys.readouterr().out.split()[0] == "broken"
+    pid_file(root, "a").write_text(f"{proc.pid + 10 ** 7}\n")
+    assert main([str(f), "--status"]) == 0
+    assert capsys.readouterr().out.split()[0] == "broken"
 
 
 def test_a_reward_reference_must_be_among_the_runs_needs(tmp_path):

@@ -140,9 +140,31 @@ def load_record(path: str | Path) -> Path | None:
     return Path(spec["record"]) if spec.get("record") else None
 
 
+def pid_file(root: Path, name: str) -> Path:
+    """Where a study writes the process id of the run it started (``ROOT/logs/NAME.pid``)."""
+    return root / "logs" / f"{name}.pid"
+
+
+def running_pid(root: Path, name: str) -> int | None:
+    """The live process training run ``name`` under ``root``, started by some ``drs-study`` call, or ``None``.
+
+    Written because two study calls on one root (say ``--only a`` and a plain call) would otherwise
+    restart, and first delete, a run the other is training."""
+    try:
+        pid = int(pid_file(root, name).read_text().split()[0])
+        cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().decode(errors="replace")
+    except (OSError, ValueError, IndexError):
+        return None
+    # a recycled pid runs something else: the run's own command names its directory
+    return pid if str(root / name) in cmdline.replace("\0", " ") else None
+
+
 def study_state(root: Path, record: Path | None, run: Run) -> str:
-    """:func:`run_state` of the run's directory; where there is none, ``recorded`` if the committed
-    record says the run finished (its state is gone: a fresh checkout), else ``new``."""
+    """:func:`run_state` of the run's directory, ``running`` while another study call trains it; where
+    there is none, ``recorded`` if the committed record says the run finished (its state is gone: a fresh
+    checkout), else ``new``."""
+    if running_pid(root, run.name) is not None:
+        return "running"
     state = run_state(root / run.name, wanted_frames(run))
     if state == "new" and record is not None and run_state(record / "run_files" / run.name, wanted_frames(run)) == "finished":
         return "recorded"
@@ -376,7 +398,12 @@ def main(argv: list[str] | None = None) -> int:
         for r in runs:
             print(f"{states[r.name]:>10}  {root / r.name}")
         return 0
-    pending = [r for r in runs if states[r.name] not in DONE]
+    busy = [r.name for r in runs if states[r.name] == "running"]
+    for r in runs:
+        if states[r.name] == "running":
+            print(f"drs-study: {r.name}: being trained by another call (pid {running_pid(root, r.name)}), skipped",
+                  flush=True)
+    pending = [r for r in runs if states[r.name] not in DONE and states[r.name] != "running"]
     problems = {r.name: check_run(r, root, record) for r in (runs if a.check else pending)}
     if a.check:
         for r in runs:
@@ -412,6 +439,7 @@ def main(argv: list[str] | None = None) -> int:
             for name, proc in list(active.items()):
                 if proc.poll() is not None:
                     del active[name]
+                    pid_file(root, name).unlink(missing_ok=True)
                     state = run_state(root / name, want[name])
                     print(f"drs-study: {name}: exit {proc.returncode}, {state}", flush=True)
                     if state == "finished":
@@ -440,6 +468,7 @@ def main(argv: list[str] | None = None) -> int:
                 log.flush()
                 print(f"drs-study: {r.name}: {'resuming' if state == 'resumable' else 'starting'}", flush=True)
                 active[r.name] = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env)
+                pid_file(root, r.name).write_text(f"{active[r.name].pid}\n")
                 pending.remove(r)
             if pending and not active:
                 waiting = [r.name for r in pending]
@@ -457,6 +486,9 @@ def main(argv: list[str] | None = None) -> int:
     if failed:
         print(f"drs-study: {len(failed)} run(s) did not finish: {failed} (see {root / 'logs'})", file=sys.stderr)
         return 1
+    if busy:
+        print(f"drs-study: {busy} still trained by another call: re-run this command once they end", flush=True)
+        return 0
     print(f"drs-study: all {len(runs)} runs finished in {root}", flush=True)
     return 0
 
