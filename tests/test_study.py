@@ -1,5 +1,6 @@
 """drs-study: runs named by a grid, dependencies, and re-invocation that skips what is finished."""
 import json
+import os
 import subprocess
 import sys
 import time
@@ -229,7 +230,7 @@ def test_a_run_another_study_call_is_training_is_neither_restarted_nor_deleted(t
     # once that process is gone (or the pid names another program) the run is the study's again
     assert main([str(f), "--status"]) == 0
     assert capsys.readouterr().out.split()[0] == "broken"
-    pid_file(root, "a").write_text(f"{proc.pid + 10 ** 7}\n")
+    pid_file(root, "a").write_text(f"{os.getpid()}\n")  # a live pid whose program is not this run's (a recycled pid)
     assert main([str(f), "--status"]) == 0
     assert capsys.readouterr().out.split()[0] == "broken"
 

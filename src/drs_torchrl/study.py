@@ -399,11 +399,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{states[r.name]:>10}  {root / r.name}")
         return 0
     busy = [r.name for r in runs if states[r.name] == "running"]
-    for r in runs:
-        if states[r.name] == "running":
-            print(f"drs-study: {r.name}: being trained by another call (pid {running_pid(root, r.name)}), skipped",
-                  flush=True)
-    pending = [r for r in runs if states[r.name] not in DONE and states[r.name] != "running"]
+    for name in busy:
+        print(f"drs-study: {name}: being trained by another call (pid {running_pid(root, name)}), skipped", flush=True)
+    pending = [r for r in runs if states[r.name] not in (*DONE, "running")]
     problems = {r.name: check_run(r, root, record) for r in (runs if a.check else pending)}
     if a.check:
         for r in runs:
