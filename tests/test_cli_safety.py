@@ -112,3 +112,19 @@ def test_interrupted_run_saves_and_exits_non_zero_even_with_its_pipe_closed(tmp_
     # and it resumes from there
     p = run(f"resume={d}", "total_frames=" + str(int(state.read_text()) + 64), cwd=tmp_path)
     assert p.returncode == 0, p.stderr[-2000:]
+
+
+def test_drs_demos_console_shows_no_library_chatter_unless_asked(tmp_path):
+    """``drs-demos`` (the motion planner through ManiSkill) filters the same chatter as ``drs-learn``."""
+    cmd = [str(BIN / "drs-demos"), "--family", "pick_cube", "--num", "1"]
+    p = subprocess.run([*cmd, "--out", str(tmp_path / "quiet.demos")], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-3000:]
+    out = p.stdout + p.stderr
+    assert "1 demonstrations" in out
+    for msg in LIBRARY_CHATTER:
+        assert msg not in out, msg
+    env = {**os.environ, "DRS_LIBRARY_MESSAGES": "1"}
+    p = subprocess.run([*cmd, "--out", str(tmp_path / "loud.demos")], cwd=tmp_path, capture_output=True, text=True,
+                       timeout=600, env=env)
+    assert p.returncode == 0, p.stderr[-3000:]
+    assert "Requested to use render device" in p.stdout + p.stderr

@@ -286,3 +286,72 @@ def test_planner_demos_replayed_in_the_agents_controller(pick_cube, tmp_path):
         assert bool(info["success"])
     finally:
         env.close()
+
+
+@pytest.mark.sim
+def test_a_stage_ablation_relabels_the_demonstrations_and_their_previous_states(pick_cube, tmp_path, capsys):
+    """env.stages=[is_grasped, success] (Sec. 5.4.1) with three-stage demonstrations: every state's
+    indicators and stage, and those of the state each action was taken in, are recomputed from the
+    kept indicators, so the demonstrations' share of the SAC batch fits the agent's transitions."""
+    from hydra import compose, initialize_config_dir
+
+    from drs_torchrl.demos import restage_demos
+    from drs_torchrl.trainers.apps import conf_dir
+    from drs_torchrl.trainers.loop import Trainer
+
+    # in the agent's controller, as drs-demos records them by default, so they can share the SAC batch
+    states, meta = record_demos(pick_cube, "cube_2cm", 2, seed=10, control_mode="pd_ee_delta_pos", progress=False)
+    demo_dir = save_demos(states, meta, tmp_path / "pc_ee.demos")
+    episodes, meta = load_demos(demo_dir)
+    two, meta2 = restage_demos(episodes, meta, ["is_grasped", "success"])
+    assert meta2["stage_keys"] == ["is_grasped", "success"] and meta2["shapes"]["stage_indicators"] == 2
+    for old, ep in zip(episodes, two):
+        assert ep["stage_indicators"].shape[-1] == ep["state", "stage_indicators"].shape[-1] == 2
+        grasped, success = old["is_grasped"].float(), old["success"].float()
+        assert torch.equal(ep["stage_indicators"], torch.cat([torch.maximum(grasped, success), success], -1))
+        assert torch.equal(ep["stage"], ep["stage_indicators"].sum(-1, keepdim=True).long())
+        assert torch.equal(ep["state", "stage_indicators"][1:], ep["stage_indicators"][:-1])
+        assert torch.equal(ep["state", "stage"][1:], ep["stage"][:-1]) and int(ep["state", "stage"][0]) == 0
+        assert int(ep["stage"][-1]) == 2 and int(old["stage"][-1]) == 3
+    same, _ = restage_demos(episodes, meta, meta["stage_keys"])  # the recorded stages: nothing changes
+    assert all(torch.equal(a["state", "stage_indicators"], b["state", "stage_indicators"]) for a, b in zip(episodes, same))
+    with pytest.raises(DemoError, match=r"\['is_lifted'\] are not among them"):
+        restage_demos(episodes, meta, ["is_lifted", "success"])
+
+    with initialize_config_dir(config_dir=conf_dir(), version_base=None):
+        cfg_overrides = [
+            "env=pick_cube", "+ablation=pnp_grasped_success", f"demos.path={demo_dir}", "demos.sac_share=0.25",
+            "demos.stage_buffers=false", "total_frames=256", "algo.learning_starts=128", "algo.batch_size=32",
+            "algo.hidden=[32,32]", "reward.disc.batch_size=16", "logger.interval=128", "eval.interval=100000",
+            "eval.episodes=1", "checkpoint_interval=100000", "logger.progress_bar=false", "logger.tensorboard=false",
+            "algo.collector._target_=torchrl.collectors.Collector"]
+        cfg = compose("learn", overrides=cfg_overrides)
+    tr = Trainer(cfg, "learn", tmp_path / "run")
+    try:
+        assert "recorded without" not in capsys.readouterr().out
+        tr.run()  # three-stage demonstrations in a two-stage run's SAC batch: this used to fail at the first update
+        batch = tr.sac_batch()
+        assert batch["stage_indicators"].shape == (32, 2) and batch["next", "stage_indicators"].shape == (32, 2)
+        assert int(batch["next", "stage"][-8:].max()) <= 2
+    finally:
+        tr.close()
+    # a placed-threshold ablation with demonstrations recorded at the default threshold: said, with the fix
+    with initialize_config_dir(config_dir=conf_dir(), version_base=None):
+        cfg = compose("learn", overrides=[*[o for o in cfg_overrides if not o.startswith("+ablation")], "+ablation=placed_5cm"])
+    Trainer(cfg, "learn", tmp_path / "run5").close()
+    out = capsys.readouterr().out
+    assert "recorded without this run's env.variant_overrides goal_thresh=0.05 (recorded with the variant's default)" in out
+    assert "drs-demos --family pick_cube --override goal_thresh=0.05 --out NEW.demos" in out
+
+
+def test_variant_mismatches_name_the_overrides_a_recording_lacks():
+    from drs_torchrl.demos import variant_mismatches
+
+    pooled = {"variant_kwargs": {"variants": [{"cube_half_size": 0.02, "goal_thresh": 0.05}, {"cube_half_size": 0.025, "goal_thresh": 0.05}]}}
+    assert variant_mismatches(pooled, {"goal_thresh": 0.05}) == [] and variant_mismatches(pooled, None) == []
+    assert variant_mismatches(pooled, {"goal_thresh": 0.1}) == ["goal_thresh=0.1 (recorded with 0.05)"]
+    single = {"variant_kwargs": {"cube_half_size": 0.02}}
+    assert variant_mismatches(single, {"goal_thresh": 0.05}) == ["goal_thresh=0.05 (recorded with the variant's default)"]
+    mixed = {"variant_kwargs": {"variants": [{"goal_thresh": 0.05}, {}]}}
+    assert variant_mismatches(mixed, {"goal_thresh": 0.05}) == [
+        "goal_thresh=0.05 (recorded with 0.05, the variant's default)"]

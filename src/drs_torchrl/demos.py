@@ -47,7 +47,7 @@ from tensordict import TensorDict
 
 from drs_torchrl.data.persistence import load_memmap_checked
 from drs_torchrl.tasks import TaskFamily, get_family, with_stages, with_task_observation
-from drs_torchrl.transforms.stages import StageIndicator
+from drs_torchrl.transforms.stages import StageIndicator, monotone_indicators
 
 DEMO_FORMAT = "drs-torchrl/demos"
 DEMO_VERSION = 1
@@ -348,6 +348,54 @@ def load_demos(path: str | Path) -> tuple[list[TensorDict], dict]:
     return episodes, meta
 
 
+def restage_demos(episodes: list[TensorDict], meta: dict, stage_keys) -> tuple[list[TensorDict], dict]:
+    """The same demonstrations under a subset of their stage indicators (a stage ablation, ``env.stages``).
+
+    Every recorded indicator is kept per state, so each state's stage and monotone indicators are
+    recomputed from ``stage_keys``, and so are those of ``"state"`` (the state each action was taken
+    in: the previous row's; the first row's from its recorded indicators' columns of ``stage_keys``).
+    """
+    stage_keys, recorded = list(stage_keys), list(meta["stage_keys"])
+    missing = [k for k in stage_keys if k not in recorded]
+    if missing:
+        raise DemoError(f"the demonstrations record the stage indicators {recorded}; {missing} are not among them")
+    labeller = StageIndicator(stage_keys)
+    cols = [recorded.index(k) for k in stage_keys]
+    out = []
+    for ep in episodes:
+        ep = labeller(ep.clone())
+        if "state" in ep.keys():
+            prev = ep.get("state")
+            first = prev[:1].get("stage_indicators")[..., cols].to(torch.bool) if "stage_indicators" in prev.keys() else None
+            for key in ("stage_indicators", "stage"):
+                if key not in prev.keys():
+                    continue
+                if key == "stage_indicators":
+                    head = monotone_indicators(first).to(torch.float32)
+                else:
+                    head = monotone_indicators(first).sum(-1, keepdim=True).to(prev.get(key).dtype)
+                prev.set(key, torch.cat([head, ep.get(key)[:-1].to(head.dtype)], 0))
+        out.append(ep)
+    shapes = {**meta["shapes"], "stage_indicators": len(stage_keys)}
+    return out, {**meta, "stage_keys": stage_keys, "shapes": shapes}
+
+
+def variant_mismatches(meta: dict, overrides: dict | None) -> list[str]:
+    """The run's variant overrides (``env.variant_overrides``) that the demonstrations were recorded without.
+
+    Their stage labels follow the recording's task definition (e.g. a "placed" threshold of 2.5 cm,
+    where the run's is 5 cm), so such a mismatch relabels nothing and is worth a warning.
+    """
+    recorded = meta.get("variant_kwargs") or {}
+    variants = recorded.get("variants") if isinstance(recorded.get("variants"), list) else [recorded]
+    out = []
+    for key, value in (overrides or {}).items():
+        have = sorted({repr(v[key]) if key in v else "the variant's default" for v in variants})
+        if have != [repr(value)]:
+            out.append(f"{key}={value!r} (recorded with {', '.join(have)})")
+    return out
+
+
 def check_demos(meta: dict, family: TaskFamily, in_shapes: dict[str, int], path: str | Path = "") -> None:
     """Raise :class:`DemoError` naming every way the demonstrations do not fit this task."""
     problems = []
@@ -644,7 +692,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--stochastic", action="store_true", help="--from-policy: sample actions instead of the mean action")
     p.add_argument("--max-episodes", type=int, default=None, help="--from-policy: give up after this many (default 20 x --num)")
     p.add_argument("--override", action="append", default=[], metavar="KEY=VALUE",
-                   help="--from-policy: a variant parameter for every episode, e.g. max_steps=150 (repeatable)")
+                   help="a variant parameter for every recorded episode, e.g. goal_thresh=0.05 (the placed-threshold "
+                   "ablations) or max_steps=150 (repeatable; not with --from-h5)")
     p.add_argument("--control-mode", default=None, help="solver demonstrations: replay them in this controller "
                    "(e.g. pd_ee_delta_pos, the agent's; default: the family's) with ManiSkill's converter; "
                    "pd_joint_pos keeps the planner's own")
@@ -667,8 +716,12 @@ def main(argv: list[str] | None = None) -> int:
         if not eq or not key:
             p.error(f"--override takes KEY=VALUE, got {item!r}")
         overrides[key] = yaml.safe_load(value)
-    if overrides and a.from_policy is None:
-        p.error("--override applies to --from-policy")
+    if overrides and a.from_h5 is not None:
+        p.error("--override applies to recording (the planner or --from-policy), not to --from-h5")
+    from drs_torchrl.console import library_messages_requested, quiet_libraries
+
+    if not library_messages_requested():  # ManiSkill's render-device and initial-pose warnings are not the user's business
+        quiet_libraries()
     try:
         if a.from_policy is not None:  # a bad checkpoint raises PolicyCheckpointError, a ValueError
             states, meta = record_policy_demos(a.from_policy, a.variant, a.num or 100, seed=a.seed,
@@ -681,7 +734,7 @@ def main(argv: list[str] | None = None) -> int:
                 states, meta = load_maniskill_h5(a.from_h5, fam, a.variant or "train", num=a.num)
             else:
                 states, meta = record_demos(fam, a.variant or "train", a.num or 100, seed=a.seed,
-                                            control_mode=a.control_mode or fam.control_mode or "pd_joint_pos")
+                                            variant_overrides=overrides or None, control_mode=a.control_mode or fam.control_mode or "pd_joint_pos")
         out = a.out or Path("demos") / f"{fam.name}-{meta['variant']}{'-policy' if a.from_policy else ''}.demos"
     except (KeyError, DemoError, RuntimeError, ValueError, TypeError) as exc:
         print(f"drs-demos: error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)

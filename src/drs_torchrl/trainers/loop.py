@@ -33,13 +33,12 @@ from tqdm.auto import tqdm
 
 from drs_torchrl.data import TrajectoryAssembler
 from drs_torchrl.data.persistence import SnapshotError, dump_buffer, load_buffer
-from drs_torchrl.demos import check_demos, load_demos
+from drs_torchrl.demos import check_demos, load_demos, restage_demos, variant_mismatches
 from drs_torchrl.envs.factory import make_family_env
 from drs_torchrl.models import POLICY_FORMAT, POLICY_INTERMEDIATE_KEYS, read_policy_checkpoint
 from drs_torchrl.precision import autocast, describe_precision, grad_scaler, resolve_precision
 from drs_torchrl.rewards import LEARNED, reward_setup
 from drs_torchrl.transforms.classifier_reward import ClassifierReward
-from drs_torchrl.transforms.stages import StageIndicator
 from drs_torchrl.run_logger import RunLogger
 from drs_torchrl.trainers.factories import (
     make_collector,
@@ -293,10 +292,15 @@ class Trainer:
         episodes, meta = load_demos(demos["path"])
         if list(meta["stage_keys"]) != list(family.stage_keys) and set(family.stage_keys) <= set(meta["stage_keys"]):
             # a stage ablation (env.stages): the demonstrations keep every indicator, so relabel them
-            labeller = StageIndicator(family.stage_keys)
-            episodes = [labeller(ep.clone()) for ep in episodes]
-            meta = {**meta, "stage_keys": list(family.stage_keys),
-                    "shapes": {**meta["shapes"], "stage_indicators": family.num_stages}}
+            episodes, meta = restage_demos(episodes, meta, family.stage_keys)
+        mismatched = variant_mismatches(meta, cfg.env.get("variant_overrides"))
+        if mismatched:
+            from omegaconf import OmegaConf
+
+            overrides = " ".join(f"--override {k}={v}" for k, v in OmegaConf.to_container(cfg.env.variant_overrides).items())
+            tqdm.write(f"drs-{self.phase}: warning: {demos['path']} were recorded without this run's env.variant_overrides "
+                       f"{'; '.join(mismatched)}: their stages follow the recording's task. To match, record them with "
+                       f"drs-demos --family {family.name} {overrides} --out NEW.demos")
         in_keys = list(cfg.reward.get("in_keys") or family.reward_in_keys)
         spec = self.env.observation_spec
         check_demos(meta, family, {k: int(spec[k].shape[-1]) for k in in_keys if k in spec.keys(True, True)}, demos["path"])
