@@ -364,17 +364,12 @@ def restage_demos(episodes: list[TensorDict], meta: dict, stage_keys) -> tuple[l
     out = []
     for ep in episodes:
         ep = labeller(ep.clone())
-        if "state" in ep.keys():
-            prev = ep.get("state")
-            first = prev[:1].get("stage_indicators")[..., cols].to(torch.bool) if "stage_indicators" in prev.keys() else None
-            for key in ("stage_indicators", "stage"):
-                if key not in prev.keys():
-                    continue
-                if key == "stage_indicators":
-                    head = monotone_indicators(first).to(torch.float32)
-                else:
-                    head = monotone_indicators(first).sum(-1, keepdim=True).to(prev.get(key).dtype)
-                prev.set(key, torch.cat([head, ep.get(key)[:-1].to(head.dtype)], 0))
+        prev = ep.get("state", None)
+        if prev is not None and "stage_indicators" in prev.keys():
+            head = monotone_indicators(prev.get("stage_indicators")[:1, cols])
+            prev.set("stage_indicators", torch.cat([head.to(torch.float32), ep.get("stage_indicators")[:-1]], 0))
+            if "stage" in prev.keys():
+                prev.set("stage", torch.cat([head.sum(-1, keepdim=True), ep.get("stage")[:-1]], 0).to(prev.get("stage").dtype))
         out.append(ep)
     shapes = {**meta["shapes"], "stage_indicators": len(stage_keys)}
     return out, {**meta, "stage_keys": stage_keys, "shapes": shapes}

@@ -295,8 +295,6 @@ class Trainer:
             episodes, meta = restage_demos(episodes, meta, family.stage_keys)
         mismatched = variant_mismatches(meta, cfg.env.get("variant_overrides"))
         if mismatched:
-            from omegaconf import OmegaConf
-
             overrides = " ".join(f"--override {k}={v}" for k, v in OmegaConf.to_container(cfg.env.variant_overrides).items())
             tqdm.write(f"drs-{self.phase}: warning: {demos['path']} were recorded without this run's env.variant_overrides "
                        f"{'; '.join(mismatched)}: their stages follow the recording's task. To match, record them with "
