@@ -57,3 +57,22 @@ def test_background_run_keeps_utd_exact_and_saves(tmp_path):
     assert (tmp_path / "checkpoints" / "reward.pt").is_file()
     assert (tmp_path / "checkpoints" / "state" / "COMPLETE").is_file()
     assert sum(json.loads((tmp_path / "summary.json").read_text())["stage_buffer_episodes"]) >= 10
+
+
+@pytest.mark.parametrize("target", ["torchrl.collectors.AsyncCollector", "torchrl.collectors.MultiAsyncCollector"])
+def test_a_gpu_learner_gets_the_in_process_collector_and_the_cpu_keeps_the_background_one(target):
+    """drs-reuse's default algo (sac_cpu) collects in a background process, which cannot feed a CUDA learner:
+    with device=cuda the in-process Collector replaces it (noted on the console, saved in the config).
+    Found on the H200 device check (results/gpu/): `drs-reuse device=cuda` refused to start."""
+    from drs_torchrl.trainers.loop import collector_for_device
+
+    cpu_cfg = config(f"algo.collector._target_={target}", "+algo.collector.num_workers=2")
+    assert collector_for_device(cpu_cfg, torch.device("cpu")) is None
+    assert cpu_cfg.algo.collector._target_ == target and cpu_cfg.algo.collector.num_workers == 2
+
+    gpu_cfg = config(f"algo.collector._target_={target}", "+algo.collector.num_workers=2")
+    note = collector_for_device(gpu_cfg, torch.device("cuda"))  # a device object only: no GPU needed
+    assert note is not None and target in note and "in-process" in note
+    assert gpu_cfg.algo.collector._target_ == "torchrl.collectors.Collector"
+    assert "num_workers" not in gpu_cfg.algo.collector
+    assert collector_for_device(gpu_cfg, torch.device("cuda")) is None  # already in-process: nothing to change

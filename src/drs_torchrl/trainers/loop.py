@@ -105,6 +105,20 @@ _EXAMPLES = {"total_frames": 200000, "algo.gamma": 0.8, "algo.tau": 0.005, "algo
              "reward.disc.lr": 0.0003, "algo.batch_size": 256, "seed": 0}
 
 
+def collector_for_device(cfg: DictConfig, device: torch.device) -> str | None:
+    """On a GPU, replace a background collector (``AsyncCollector``/``Multi*``: the CPU-machine speed choice of
+    ``algo=sac_cpu``, whose worker cannot feed a CUDA learner) by the in-process ``Collector``; returns the
+    console note, or None when nothing changed. Edits ``cfg`` (saved in config.yaml: a resume keeps it)."""
+    target = cfg.algo.collector._target_
+    if torch.device(device).type == "cpu" or not issubclass(get_class(target), MultiCollector):
+        return None
+    with open_dict(cfg):
+        cfg.algo.collector._target_ = "torchrl.collectors.Collector"
+        cfg.algo.collector.pop("num_workers", None)
+    return (f"device={torch.device(device).type}: the in-process torchrl.collectors.Collector replaces "
+            f"algo.collector={target} (a background worker cannot feed a GPU learner)")
+
+
 def validate_config(cfg: DictConfig, phase: str) -> None:
     """Reject values that would fail later or silently do nothing."""
     _check_types(cfg)
@@ -199,6 +213,7 @@ class Trainer:
         if cfg.algo.get("precision") == "auto":  # saved resolved: a resume on another machine keeps this run's numerics
             cfg.algo.precision = self.precision
         self._grad_scaler = grad_scaler(self.precision, self.device)
+        self.notes = [n for n in [collector_for_device(cfg, self.device)] if n]  # printed when the run starts
         self.reward = reward = reward_setup(cfg.reward, phase)
         reads = list(cfg.reward.get("in_keys") or getattr(reward.frozen, "reward_in_keys", None) or ())
         if TASK_OBSERVATION_KEY in reads and not cfg.env.get("task_observation"):
@@ -570,11 +585,6 @@ class Trainer:
         """
         if not self.collects_in_background:
             return self.env
-        if self.device.type != "cpu":
-            raise ConfigError(
-                f"a background collector process with a {self.device} learner is not supported; with a GPU use "
-                "algo.collector._target_=torchrl.collectors.Collector (ManiSkill's GPU simulation is batched in-process)"
-            )
         seed = int(self.cfg.seed) + (1 + self.frames if self.resumed_from is not None else 0)
         transforms = (self.reward.frozen.clone(),) if self.reward.frozen is not None else ()
 
@@ -600,6 +610,8 @@ class Trainer:
         summary: dict[str, Any] = {"phase": self.phase, "run_dir": str(self.run_dir), "resumed_from": self.resumed_from,
                                    "precision": self.precision, "init_from": cfg.get("init_from")}
         tqdm.write(f"drs-{self.phase}: {describe_precision(self.precision, self.device)}")
+        for note in self.notes:
+            tqdm.write(f"drs-{self.phase}: {note}")
         if self.learner is not None and self.frames == 0 and self.resumed_from is None:
             self.learner.prepare(self.env)  # e.g. ORIL's offline classifier, before the first env step
         if total - self.frames > 0:
