@@ -105,12 +105,18 @@ _EXAMPLES = {"total_frames": 200000, "algo.gamma": 0.8, "algo.tau": 0.005, "algo
              "reward.disc.lr": 0.0003, "algo.batch_size": 256, "seed": 0}
 
 
+def collects_in_background(cfg: DictConfig) -> bool:
+    """True when ``algo.collector`` steps the env in its own process (TorchRL's ``AsyncCollector``/
+    ``MultiAsyncCollector``/``MultiSyncCollector``), overlapping simulation with the updates of this process."""
+    return issubclass(get_class(cfg.algo.collector._target_), MultiCollector)
+
+
 def collector_for_device(cfg: DictConfig, device: torch.device) -> str | None:
     """On a GPU, replace a background collector (``AsyncCollector``/``Multi*``: the CPU-machine speed choice of
     ``algo=sac_cpu``, whose worker cannot feed a CUDA learner) by the in-process ``Collector``; returns the
     console note, or None when nothing changed. Edits ``cfg`` (saved in config.yaml: a resume keeps it)."""
     target = cfg.algo.collector._target_
-    if torch.device(device).type == "cpu" or not issubclass(get_class(target), MultiCollector):
+    if torch.device(device).type == "cpu" or not collects_in_background(cfg):
         return None
     with open_dict(cfg):
         cfg.algo.collector._target_ = "torchrl.collectors.Collector"
@@ -213,7 +219,8 @@ class Trainer:
         if cfg.algo.get("precision") == "auto":  # saved resolved: a resume on another machine keeps this run's numerics
             cfg.algo.precision = self.precision
         self._grad_scaler = grad_scaler(self.precision, self.device)
-        self.notes = [n for n in [collector_for_device(cfg, self.device)] if n]  # printed when the run starts
+        note = collector_for_device(cfg, self.device)
+        self.notes = [note] if note else []  # printed when the run starts
         self.reward = reward = reward_setup(cfg.reward, phase)
         reads = list(cfg.reward.get("in_keys") or getattr(reward.frozen, "reward_in_keys", None) or ())
         if TASK_OBSERVATION_KEY in reads and not cfg.env.get("task_observation"):
@@ -570,10 +577,8 @@ class Trainer:
 
     @property
     def collects_in_background(self) -> bool:
-        """True when the configured collector steps the env in its own process (TorchRL's
-        ``AsyncCollector``/``MultiAsyncCollector``/``MultiSyncCollector``), overlapping simulation with
-        the SAC and discriminator updates of this process."""
-        return issubclass(get_class(self.cfg.algo.collector._target_), MultiCollector)
+        """True when the configured collector steps the env in its own process (``collects_in_background``)."""
+        return collects_in_background(self.cfg)
 
     def _collector_env(self):
         """The env for the collector: the trainer's own env for an in-process collector, else a
