@@ -269,3 +269,37 @@ def test_a_run_with_a_bad_override_or_missing_file_stops_the_study_before_anythi
     assert not (tmp_path / "runs").exists()
     # the good runs alone pass the check
     assert main([str(f), "--check", "--only", "ok", "reuse"]) == 0
+
+
+def test_status_counts_the_env_steps_and_hours_a_study_has_left(tmp_path, capsys):
+    """What is left: the unfinished part of a resumable run, every step of a new one, nothing of a finished
+    one, timed at the speed the run directories logged (a fresh checkout: the record's summaries)."""
+    from drs_torchrl.study import main, work_left
+
+    root, out = tmp_path / "runs", tmp_path / "results"
+    study = write(tmp_path, {"root": str(root), "app": "reuse", "record": str(out),
+                             "runs": [{"name": "done_s0", "args": ["total_frames=3000"]},
+                                      {"name": "half_s0", "args": ["total_frames=4000"]},
+                                      {"name": "new_s0", "args": ["total_frames=9000"]},
+                                      {"name": "learn_s0", "app": "learn", "args": ["total_frames=2000"]}]})
+    _fake_run(root / "done_s0", "dense", 0, [0.0, 0.5, 1.0], 3000, complete=True)
+    (root / "done_s0" / "summary.json").write_text(json.dumps({"frames": 3000, "interrupted": False, "env_steps_per_s": 99.0}))
+    _fake_run(root / "half_s0", "sparse", 0, [0.0], 4000, complete=True)   # resumable at 1000 of 4000
+    for d, v in (("done_s0", 2.0), ("half_s0", 1.0)):
+        lines = (root / d / "train.csv").read_text().splitlines()
+        (root / d / "train.csv").write_text("\n".join([lines[0] + ",env_steps_per_s"] + [x + f",{v}" for x in lines[1:]]) + "\n")
+    _, runs = load_study(study)
+    states = {"done_s0": "finished", "half_s0": "resumable", "new_s0": "new", "learn_s0": "new"}
+    line = work_left(root, None, runs, states, jobs=2)
+    # 3000 + 9000 + 2000 = 14,000 steps at the median of 2.0 and 1.0 env steps/s (the upper one of two): 7000 s
+    assert line.startswith("left: 3 of 4 runs, at most 14,000 env steps (phase-1 runs stop early")
+    assert "at 2.0 env steps/s per run (median of 2 run directories here) about 1.9 h of runs, 58 min with --jobs 2" in line
+    assert main([str(study), "--status"]) == 0
+    assert capsys.readouterr().out.strip().splitlines()[-1].startswith("left: 3 of 4 runs, at most 14,000 env steps")
+    # a fresh checkout: no run directories, the speed comes from the record's summaries
+    (out / "run_files" / "done_s0").mkdir(parents=True)
+    (out / "run_files" / "done_s0" / "summary.json").write_text(json.dumps({"env_steps_per_s": 50.0}))
+    states = {"done_s0": "recorded", "half_s0": "new", "new_s0": "new", "learn_s0": "new"}
+    line = work_left(tmp_path / "elsewhere", out, runs, states, jobs=1)
+    assert "at most 15,000 env steps" in line and "at 50.0 env steps/s per run (median of 1 recorded runs) about 5 min of runs" in line
+    assert work_left(root, None, runs, dict.fromkeys(states, "finished")) == "left: nothing, all 4 runs done"

@@ -39,7 +39,7 @@ saves its training state) and the study exits 130/143; re-invoke it to continue.
 keeps the record OUT already holds) and writes
 what a results folder commits, never training states: ``OUT/run_files/<run>/`` (``train.csv``,
 ``eval.csv``, ``config.yaml``, ``summary.json``; a phase-1 run's ``reward.pt`` and ``policy.pt`` too), ``OUT/status.md``
-(each run's state, env steps and last evaluation), and ``drs-compare`` of the finished phase-2 runs into
+(each run's state, env steps and last evaluation, and the run-hours left), and ``drs-compare`` of the finished phase-2 runs into
 ``OUT/`` and of the finished phase-1 runs into ``OUT/learn/`` (a run still going would cut every curve's
 horizon), grouped by run name without its seed (``drs_s0``, ``drs_s1`` -> ``drs``).
 """
@@ -297,6 +297,69 @@ def _frames(run_dir: Path) -> int:
         return 0
 
 
+def _summary(run_dir: Path) -> dict:
+    try:
+        return json.loads((run_dir / "summary.json").read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def _last_speed(run_dir: Path) -> float | None:
+    """The last logged ``env_steps_per_s`` of a run directory's ``train.csv``, or None."""
+    f = run_dir / "train.csv"
+    lines = f.read_text().strip().splitlines() if f.is_file() else []
+    if len(lines) < 2 or "env_steps_per_s" not in lines[0].split(","):
+        return None
+    try:
+        v = float(lines[-1].split(",")[lines[0].split(",").index("env_steps_per_s")])
+    except (ValueError, IndexError):
+        return None
+    return v if v > 0 else None
+
+
+def _duration(seconds: float) -> str:
+    return f"{seconds / 3600:.1f} h" if seconds >= 3600 else f"{seconds / 60:.0f} min"
+
+
+def work_left(root: Path, record: Path | None, runs: list[Run], states: dict[str, str], jobs: int = 2) -> str:
+    """One line on what the study still costs: runs and env steps left, and the hours they take at the
+    study's own measured speed: the median last ``env_steps_per_s`` of the run directories on this machine
+    (their ``train.csv``), else of the record's ``summary.json`` files (a fresh checkout: other machines).
+
+    Written because a study spans sessions and days; planning one needs its remaining run-hours."""
+    speeds, where = [_last_speed(root / r.name) for r in runs], "run directories here"
+    speeds = [v for v in speeds if v]
+    if not speeds and record is not None:
+        speeds = [_summary(record / "run_files" / r.name).get("env_steps_per_s") for r in runs]
+        speeds, where = [float(v) for v in speeds if isinstance(v, (int, float)) and v > 0], "recorded runs"
+    left = [r for r in runs if states[r.name] not in DONE]
+    steps, unsized = 0, []
+    for r in left:
+        asked = wanted_frames(r)
+        if asked is None:
+            try:
+                asked = int(yaml.safe_load((root / r.name / "config.yaml").read_text())["total_frames"])
+            except (OSError, KeyError, TypeError, ValueError):
+                unsized.append(r.name)
+                continue
+        done = _frames(root / r.name) if states[r.name] in ("resumable", "running") else 0
+        steps += max(asked - done, 0)
+    if not left:
+        return f"left: nothing, all {len(runs)} runs done"
+    early = any(r.app == "learn" for r in left)
+    line = (f"left: {len(left)} of {len(runs)} runs, {'at most ' if early else ''}{steps:,} env steps"
+            + (" (phase-1 runs stop early at stop_at_success)" if early else ""))
+    if unsized:
+        line += f", not counting {len(unsized)} run(s) without a total_frames ({', '.join(unsized)})"
+    if speeds:
+        v = sorted(speeds)[len(speeds) // 2]
+        line += (f"; at {v:.1f} env steps/s per run (median of {len(speeds)} {where}) about "
+                 f"{_duration(steps / v)} of runs, {_duration(steps / v / max(jobs, 1))} with --jobs {max(jobs, 1)}")
+    else:
+        line += "; no run has measured its speed yet"
+    return line
+
+
 def report(root: Path, runs: list[Run], out: Path, study_file: str | Path = "",
            record: Path | None = None) -> dict[str, Path]:
     """Copy each run's record into ``out/run_files``, write ``out/status.md`` and the comparisons.
@@ -332,7 +395,9 @@ def report(root: Path, runs: list[Run], out: Path, study_file: str | Path = "",
             copied[r.app].append(dst)
     paths = {"status": out / "status.md"}
     head = f"Written by `drs-study {study_file} --report {out}`; states as `drs-study --status` sees them.\n\n"
-    paths["status"].write_text(head + "\n".join(rows) + "\n")
+    states = {r.name: study_state(root, record, r) for r in runs}
+    tail = "\n" + work_left(root, record, runs, states) + " (`drs-study --status` says the same).\n"
+    paths["status"].write_text(head + "\n".join(rows) + "\n" + tail)
     # reuse runs on another split than most (e.g. the dense baseline checked on the training variants) get
     # their own comparison, so that the AUC horizon and the curves of the main one are the held-out runs'
     by_split: dict[str, list[Path]] = {}
@@ -397,6 +462,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.status:
         for r in runs:
             print(f"{states[r.name]:>10}  {root / r.name}")
+        print(work_left(root, record, runs, states, a.jobs))
         return 0
     busy = [r.name for r in runs if states[r.name] == "running"]
     for name in busy:
