@@ -178,9 +178,11 @@ def first_step_over(groups_runs: list[RunRecord], threshold: float = 0.5, source
 def summary_rows(groups: list[Group]) -> list[dict]:
     """Per group: final and last-3 evaluation success, the normalised AUC up to the shortest evaluated
     run of the whole comparison (so groups are compared over the same steps), and the first step at
-    which the group's mean success passes 0.5."""
+    which the group's mean success passes 0.5. A run with a single evaluation has no curve to integrate
+    (AUC NaN) and does not set the horizon: e.g. ORIL's phase 1, whose reward is fixed before its first step."""
     evaluated = [r for g in groups for r in g.runs if r.eval is not None]
-    horizon = min((_eval_curve(r)[0][-1] for r in evaluated), default=float("nan"))
+    curves = [_eval_curve(r)[0] for r in evaluated]
+    horizon = min((x[-1] for x in curves if x.size >= 2), default=min((x[-1] for x in curves), default=float("nan")))
     rows = []
     for g in groups:
         finals, last3, aucs = [], [], []
