@@ -32,9 +32,9 @@ def test_stage_subsets_keep_order_and_end_with_success():
     ("one_stage", "turn_valve", lambda c, f: f.stage_keys == ("success",)),
     ("pnp_grasped_success", "pick_and_place", lambda c, f: f.stage_keys == ("is_grasped", "success")),
     ("pnp_placed_success", "pick_and_place", lambda c, f: f.stage_keys == ("is_obj_placed", "success")),
-    ("placed_2_5cm", "pick_and_place", lambda c, f: c.env.variant_overrides.goal_thresh == 0.025),
-    ("placed_5cm", "pick_and_place", lambda c, f: c.env.variant_overrides.goal_thresh == 0.05),
-    ("placed_10cm", "pick_and_place", lambda c, f: c.env.variant_overrides.goal_thresh == 0.10),
+    ("placed_2_5cm", "pick_and_place", lambda c, f: c.env.variant_overrides.placed_thresh == 0.025),
+    ("placed_5cm", "pick_and_place", lambda c, f: c.env.variant_overrides.placed_thresh == 0.05),
+    ("placed_10cm", "pick_and_place", lambda c, f: c.env.variant_overrides.placed_thresh == 0.10),
     ("sum_of_tanh", "pick_and_place", lambda c, f: c.reward.formula == "sum" and f.num_stages == 3),
 ])
 def test_each_ablation_is_one_config(ablation, env, check):
@@ -65,3 +65,33 @@ def test_one_stage_env_and_reward_and_the_reuse_hint(tmp_path):
             DrSReward.from_checkpoint(path).check_compatible(full.observation_spec, num_stages=2, family="turn_valve")
     finally:
         full.close()
+
+
+def test_placed_threshold_moves_the_stage_indicator_and_not_success():
+    """Sec. 5.4.1: "the task success condition is unchanged" when the placed threshold moves. A real
+    PickCube scene with the cube put 5 cm beside the goal and the robot at rest: placed at 10 cm, not
+    placed at the default 2.5 cm, and never a success (the success distance stays 2.5 cm)."""
+    from mani_skill.utils.structs.pose import Pose
+
+    from drs_torchrl.envs import make_family_env
+    from drs_torchrl.tasks import get_family
+
+    def evaluate_at(overrides, offset):
+        env = make_family_env(get_family("pick_cube"), "train", seed=0, variant_overrides=overrides)
+        try:
+            env.reset()
+            u = env.base_env.unwrapped
+            goal = u.goal_site.pose.p.clone()
+            u.obj.set_pose(Pose.create_from_pq(goal + torch.tensor([offset, 0.0, 0.0]), u.obj.pose.q))
+            return {k: bool(v[0]) for k, v in u.evaluate().items() if k in ("is_obj_placed", "success", "is_robot_static")}
+        finally:
+            env.close()
+
+    loose = evaluate_at({"placed_thresh": 0.10}, 0.05)
+    assert loose["is_obj_placed"] and not loose["success"] and loose["is_robot_static"]
+    default = evaluate_at(None, 0.05)
+    assert not default["is_obj_placed"] and not default["success"]
+    at_goal = evaluate_at({"placed_thresh": 0.10}, 0.0)  # the success distance is still met at the goal itself
+    assert at_goal["is_obj_placed"] and at_goal["success"] == at_goal["is_robot_static"]
+    with pytest.raises(ValueError, match="placed_thresh must be >= 0"):
+        evaluate_at({"placed_thresh": -0.1}, 0.0)

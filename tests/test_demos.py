@@ -340,8 +340,8 @@ def test_a_stage_ablation_relabels_the_demonstrations_and_their_previous_states(
         cfg = compose("learn", overrides=[*[o for o in cfg_overrides if not o.startswith("+ablation")], "+ablation=placed_5cm"])
     Trainer(cfg, "learn", tmp_path / "run5").close()
     out = capsys.readouterr().out
-    assert "recorded without this run's env.variant_overrides goal_thresh=0.05 (recorded with the variant's default)" in out
-    assert "drs-demos --family pick_cube --override goal_thresh=0.05 --out NEW.demos" in out
+    assert "recorded without this run's env.variant_overrides placed_thresh=0.05 (recorded with the variant's default)" in out
+    assert "drs-demos --family pick_cube --override placed_thresh=0.05 --out NEW.demos" in out
 
 
 def test_variant_mismatches_name_the_overrides_a_recording_lacks():

@@ -687,7 +687,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--stochastic", action="store_true", help="--from-policy: sample actions instead of the mean action")
     p.add_argument("--max-episodes", type=int, default=None, help="--from-policy: give up after this many (default 20 x --num)")
     p.add_argument("--override", action="append", default=[], metavar="KEY=VALUE",
-                   help="a variant parameter for every recorded episode, e.g. goal_thresh=0.05 (the placed-threshold "
+                   help="a variant parameter for every recorded episode, e.g. placed_thresh=0.05 (the placed-threshold "
                    "ablations) or max_steps=150 (repeatable; not with --from-h5)")
     p.add_argument("--control-mode", default=None, help="solver demonstrations: replay them in this controller "
                    "(e.g. pd_ee_delta_pos, the agent's; default: the family's) with ManiSkill's converter; "

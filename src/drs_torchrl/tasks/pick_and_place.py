@@ -8,8 +8,9 @@ proportions and sizes, so no test object was seen in training. Every episode dra
 the split (``envs/variants/pick.py``).
 
 Stage indicators (Appendix A): ``is_grasped`` (both fingers touch the object with non-zero force),
-``is_obj_placed`` (within ``goal_thresh`` of the goal, 2.5 cm by default:
-``+env.variant_overrides.goal_thresh=0.05``) and ``success`` = placed, robot static (joint speeds
+``is_obj_placed`` (within ``placed_thresh`` of the goal, by default ``goal_thresh`` = 2.5 cm:
+``+env.variant_overrides.placed_thresh=0.05`` moves the indicator alone) and ``success`` = within
+``goal_thresh``, robot static (joint speeds
 < 0.2 rad/s) and object static (< 3 cm/s; ``object_static_thresh``).
 """
 from drs_torchrl.tasks import TaskFamily, register_family

@@ -23,7 +23,7 @@ register_family(
         name="pick_cube",
         env_id="PickCubeSized-v1",
         description="Panda picks a cube and holds it at a goal in mid-air (Pick-and-Place, Appendix A)",
-        # grasped -> placed (within goal_thresh of the goal) -> placed and static (= success)
+        # grasped -> placed (within placed_thresh, by default goal_thresh) -> within goal_thresh and static (= success)
         stage_keys=("is_grasped", "is_obj_placed", "success"),
         info_keys=("is_robot_static",),
         variants={

@@ -6,8 +6,8 @@ command. The object list comes with the download, so the held-out split is a rul
 ids (``envs.variants.assets.ycb_split``): every fourth object is a test object, the rest (about
 three quarters) are training objects; every episode loads one object of the split.
 
-Stage indicators (Appendix A): ``is_grasped``, ``is_obj_placed`` (2.5 cm, ``goal_thresh``),
-``success`` = placed, robot static and object static (< 3 cm/s).
+Stage indicators (Appendix A): ``is_grasped``, ``is_obj_placed`` (2.5 cm; ``placed_thresh``, by default ``goal_thresh``),
+``success`` = within ``goal_thresh``, robot static and object static (< 3 cm/s).
 """
 from drs_torchrl.tasks import TaskFamily, register_family
 

@@ -8,8 +8,9 @@ episode, its ``reconfiguration_freq=1`` default for one env), so the per-episode
 model ManiSkill loads, drawn from the models of the split's variants.
 
 * ``PickSingleYCBSplit-v1``: PickSingleYCB-v1 on a subset of the YCB objects. Stage indicators as
-  Appendix A's Pick-and-Place: ``is_grasped``, ``is_obj_placed`` (within ``goal_thresh``),
-  ``success`` = placed, robot static and object static (< 3 cm/s over the last control step).
+  Appendix A's Pick-and-Place: ``is_grasped``, ``is_obj_placed`` (within ``placed_thresh``; 0 =
+  ``goal_thresh``), ``success`` = within ``goal_thresh``, robot static and object static (< 3 cm/s over
+  the last control step).
 * ``TurnFaucetSplit-v1``: TurnFaucet-v1 on a subset of its 60 PartNet-Mobility faucets.
   Indicators (Appendix A, Turn Faucet): ``is_handle_moving`` (the target joint turns towards its
   goal faster than ``moving_thresh`` = 0.01 rad/s) and ``success`` (90% of the joint range).
@@ -31,6 +32,7 @@ from mani_skill.envs.tasks.tabletop.pick_single_ycb import PickSingleYCBEnv
 from mani_skill.envs.tasks.tabletop.turn_faucet import TurnFaucetEnv
 from mani_skill.utils.registration import REGISTERED_ENVS, register_env
 
+from drs_torchrl.envs.variants.pick import placed_threshold
 from drs_torchrl.envs.variants.pool import VariantPoolMixin
 
 
@@ -73,7 +75,8 @@ class _ModelSplitMixin(VariantPoolMixin):
 
 
 class PickSingleYCBSplitEnv(_ModelSplitMixin, PickSingleYCBEnv):
-    VARIANT_DEFAULTS = {"model_ids": None, "model_split": None, "goal_thresh": 0.025, "object_static_thresh": 0.03}
+    VARIANT_DEFAULTS = {"model_ids": None, "model_split": None, "goal_thresh": 0.025, "placed_thresh": 0.0,
+                        "object_static_thresh": 0.03}
 
     def __init__(self, *args, variants=None, variant_names=None, robot_uids=None, **kwargs):
         kwargs = self._pool_init(variants, variant_names, kwargs if robot_uids is None else {"robot_uids": robot_uids, **kwargs})
@@ -102,12 +105,14 @@ class PickSingleYCBSplitEnv(_ModelSplitMixin, PickSingleYCBEnv):
 
     def evaluate(self):
         info = super().evaluate()
-        info["is_obj_placed"] = torch.linalg.norm(info["obj_to_goal_pos"], axis=1) <= self._param("goal_thresh")
+        obj_to_goal = torch.linalg.norm(info["obj_to_goal_pos"], axis=1)
+        at_goal = obj_to_goal <= self._param("goal_thresh")
+        info["is_obj_placed"] = obj_to_goal <= placed_threshold(self)  # the stage indicator; success keeps goal_thresh
         thresh = self._param("object_static_thresh")
         # speed over the last control step: PhysX reports velocity for a squeezed object that does not move
         speed = torch.linalg.norm(self.obj.pose.p - self._obj_prev_p, axis=1) * self.control_freq
         info["is_obj_static"] = (speed <= thresh) | (thresh <= 0)
-        info["success"] = info["is_obj_placed"] & info["is_robot_static"] & info["is_obj_static"]
+        info["success"] = at_goal & info["is_robot_static"] & info["is_obj_static"]
         return info
 
 

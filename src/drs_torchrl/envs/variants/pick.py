@@ -3,17 +3,20 @@ with the object, the "placed" threshold and the robot as parameters.
 
 * ``PickObject-v1``: pick an object of a given primitive shape and size and hold it at a goal.
   Stage indicators: ``is_grasped`` (both fingers touch the object with non-zero force),
-  ``is_obj_placed`` (object within ``goal_thresh`` of the goal, 2.5 cm by default) and ``success``
-  = placed, robot static (joint speeds < 0.2 rad/s) and object static (< 3 cm/s), as Appendix A.
+  ``is_obj_placed`` (object within ``placed_thresh`` of the goal; 0, the default, means ``goal_thresh``,
+  2.5 cm) and ``success`` = object within ``goal_thresh``, robot static (joint speeds < 0.2 rad/s) and object static (< 3 cm/s), as Appendix A.
   The object's speed is its displacement over the last control step: PhysX reports a few cm/s
   (and rad/s) of velocity for an object squeezed between the fingers even when it does not move.
   Works with the robots ManiSkill's PickCube supports without downloads (``panda``, ``fetch``,
   ``so100``); each robot keeps ManiSkill's PickCube workspace (spawn region, goal heights).
   :meth:`PickObjectEnv.task_observation` is a robot-agnostic view of the task for rewards that
   must transfer between robots.
-* ``PickCubeSized-v1``: the ``pick_cube`` family's env, PickCube with ``cube_half_size`` and
-  ``goal_thresh`` per variant; success is ManiSkill's (placed and robot static), and the
-  observation is PickCube's (42 numbers with the Panda).
+* ``PickCubeSized-v1``: the ``pick_cube`` family's env, PickCube with ``cube_half_size``,
+  ``goal_thresh`` and ``placed_thresh`` per variant; success is ManiSkill's (within ``goal_thresh``
+  and robot static), and the observation is PickCube's (42 numbers with the Panda).
+
+``placed_thresh`` moves the "placed" stage indicator alone, as the paper's threshold ablation does
+(Sec. 5.4.1: "the task success condition is unchanged"); ``goal_thresh`` moves success too.
 
 Both draw a variant per episode from the pool they are given (see ``pool.py``).
 """
@@ -29,6 +32,12 @@ from mani_skill.utils.structs.pose import Pose
 
 from drs_torchrl.envs.variants.pool import ActorPool, ObjectSpec, VariantPoolMixin
 
+def placed_threshold(env) -> torch.Tensor:
+    """The "placed" stage indicator's distance per env: ``placed_thresh``, or ``goal_thresh`` where it is 0."""
+    goal, placed = env._param("goal_thresh"), env._param("placed_thresh")
+    return torch.where(placed > 0, placed, goal)
+
+
 OBJECT_COLORS = [(0.85, 0.1, 0.1, 1), (0.1, 0.3, 0.85, 1), (0.9, 0.6, 0.1, 1), (0.5, 0.1, 0.7, 1), (0.1, 0.6, 0.5, 1)]
 
 
@@ -37,11 +46,13 @@ class PickObjectEnv(VariantPoolMixin, PickCubeEnv):
 
     Variant parameters (per episode): ``object_shape`` (``box``, ``cube``, ``cylinder``, ``sphere``,
     ``capsule``), ``object_size`` (see :class:`~drs_torchrl.envs.variants.pool.ObjectSpec`),
-    ``goal_thresh`` (metres) and ``object_static_thresh`` (m/s; ``0`` drops the object-static
-    condition from success). ``robot_uids`` is a constructor argument.
+    ``goal_thresh`` (metres, success's distance to the goal), ``placed_thresh`` (metres, the "placed"
+    stage indicator's; ``0`` = ``goal_thresh``) and ``object_static_thresh`` (m/s; ``0`` drops the
+    object-static condition from success). ``robot_uids`` is a constructor argument.
     """
 
-    VARIANT_DEFAULTS = {"object_shape": "cube", "object_size": 0.02, "goal_thresh": 0.025, "object_static_thresh": 0.03}
+    VARIANT_DEFAULTS = {"object_shape": "cube", "object_size": 0.02, "goal_thresh": 0.025, "placed_thresh": 0.0,
+                        "object_static_thresh": 0.03}
     GRASPABLE = (0.005, 0.04)  # half widths the grippers can close on (metres)
 
     def __init__(self, *args, variants=None, variant_names=None, robot_uids=None, **kwargs):
@@ -60,6 +71,8 @@ class PickObjectEnv(VariantPoolMixin, PickCubeEnv):
                              f"{min(spec.half_extent[:2])} m is outside the graspable {lo}-{hi} m range")
         if float(variant["goal_thresh"]) <= 0:
             raise ValueError(f"goal_thresh must be > 0, got {variant['goal_thresh']}")
+        if float(variant.get("placed_thresh") or 0.0) < 0:
+            raise ValueError(f"placed_thresh must be >= 0 (0: the same as goal_thresh), got {variant['placed_thresh']}")
 
     # -------------------------------------------------------------------- scene
     @property
@@ -130,11 +143,12 @@ class PickObjectEnv(VariantPoolMixin, PickCubeEnv):
     def evaluate(self):
         obj = self.obj
         obj_to_goal = torch.linalg.norm(self.goal_site.pose.p - obj.pose.p, axis=1)
-        is_obj_placed = obj_to_goal <= self._param("goal_thresh")
+        at_goal = obj_to_goal <= self._param("goal_thresh")
+        is_obj_placed = obj_to_goal <= placed_threshold(self)
         is_grasped = self.agent.is_grasping(obj)
         is_robot_static = self.agent.is_static(0.2)
         info = {"is_obj_placed": is_obj_placed, "is_robot_static": is_robot_static, "is_grasped": is_grasped}
-        success = is_obj_placed & is_robot_static
+        success = at_goal & is_robot_static
         if "object_static_thresh" in self.VARIANT_DEFAULTS:
             thresh = self._param("object_static_thresh")
             info["is_obj_static"] = (self.object_speed() <= thresh) | (thresh <= 0)
@@ -160,13 +174,13 @@ class PickObjectEnv(VariantPoolMixin, PickCubeEnv):
 
 
 class PickCubeSizedEnv(PickObjectEnv):
-    """PickCube with ``cube_half_size`` (metres) and ``goal_thresh`` (placed threshold) per variant.
+    """PickCube with ``cube_half_size``, ``goal_thresh`` and ``placed_thresh`` (metres) per variant.
 
-    Success is ManiSkill's PickCube success (placed and robot static), and ``cube_half_size`` /
-    ``goal_thresh`` read as the current episode's values on the CPU backend.
+    Success is ManiSkill's PickCube success (within ``goal_thresh`` and robot static), and
+    ``cube_half_size`` / ``goal_thresh`` read as the current episode's values on the CPU backend.
     """
 
-    VARIANT_DEFAULTS = {"cube_half_size": 0.02, "goal_thresh": 0.025}
+    VARIANT_DEFAULTS = {"cube_half_size": 0.02, "goal_thresh": 0.025, "placed_thresh": 0.0}
 
     def _object_spec(self, variant):
         return ObjectSpec.make("cube", variant["cube_half_size"])
