@@ -4,7 +4,8 @@ with the object, the "placed" threshold and the robot as parameters.
 * ``PickObject-v1``: pick an object of a given primitive shape and size and hold it at a goal.
   Stage indicators: ``is_grasped`` (both fingers touch the object with non-zero force),
   ``is_obj_placed`` (object within ``placed_thresh`` of the goal; 0, the default, means ``goal_thresh``,
-  2.5 cm) and ``success`` = object within ``goal_thresh``, robot static (joint speeds < 0.2 rad/s) and object static (< 3 cm/s), as Appendix A.
+  2.5 cm) and ``success`` = object within ``goal_thresh``, robot static (joint speeds < 0.2 rad/s)
+  and object static (< 3 cm/s), as Appendix A.
   The object's speed is its displacement over the last control step: PhysX reports a few cm/s
   (and rad/s) of velocity for an object squeezed between the fingers even when it does not move.
   Works with the robots ManiSkill's PickCube supports without downloads (``panda``, ``fetch``,
@@ -31,6 +32,7 @@ from mani_skill.utils.scene_builder.table import TableSceneBuilder
 from mani_skill.utils.structs.pose import Pose
 
 from drs_torchrl.envs.variants.pool import ActorPool, ObjectSpec, VariantPoolMixin
+
 
 def placed_threshold(env) -> torch.Tensor:
     """The "placed" stage indicator's distance per env: ``placed_thresh``, or ``goal_thresh`` where it is 0."""
@@ -71,7 +73,7 @@ class PickObjectEnv(VariantPoolMixin, PickCubeEnv):
                              f"{min(spec.half_extent[:2])} m is outside the graspable {lo}-{hi} m range")
         if float(variant["goal_thresh"]) <= 0:
             raise ValueError(f"goal_thresh must be > 0, got {variant['goal_thresh']}")
-        if float(variant.get("placed_thresh") or 0.0) < 0:
+        if float(variant["placed_thresh"]) < 0:
             raise ValueError(f"placed_thresh must be >= 0 (0: the same as goal_thresh), got {variant['placed_thresh']}")
 
     # -------------------------------------------------------------------- scene
