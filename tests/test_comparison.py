@@ -86,7 +86,6 @@ def test_auc_and_first_step_past_half_have_known_values(tmp_path):
     assert "| drs | not by 3k | not by 3k |" in md
 
 
-
 def test_a_run_with_one_evaluation_does_not_set_the_auc_horizon(tmp_path):
     # ORIL's phase 1 stops after one evaluation (its reward is fixed before the first step): it has no
     # curve to integrate, and the other runs keep their horizon (3k) instead of collapsing to 1k
@@ -101,6 +100,7 @@ def test_a_run_with_one_evaluation_does_not_set_the_auc_horizon(tmp_path):
     # only single-evaluation runs: the horizon is still their step (nothing to integrate)
     rows = summary_rows(group_runs([load_run(o)]))
     assert rows[0]["auc_horizon"] == 1000 and np.isnan(rows[0]["auc_mean"])
+
 
 def test_training_table_gives_the_first_step_each_stage_passes_half(tmp_path):
     a = make_run(tmp_path, "a", "drs", 0, [0.0, 0.4, 1.0], [0.2, 0.6, 1.0])   # train: stage 1 = reach1, success = y / 2
