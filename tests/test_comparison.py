@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drs_torchrl.comparison import CompareError, compare, main
+from drs_torchrl.comparison import CompareError, compare, group_style, main
 
 
 def make_run(root: Path, name: str, reward: str, seed: int, success: list[float], reach1: list[float], interval=1000):
@@ -150,3 +150,10 @@ def test_bad_inputs_name_what_is_wrong(tmp_path, capsys):
     assert main([str(empty), "--out", str(tmp_path / "out2")]) == 2
     assert "has no train.csv" in capsys.readouterr().err
     assert not (tmp_path / "out2").exists()
+
+
+def test_groups_beyond_ten_keep_distinct_styles():
+    """Matplotlib's colour cycle repeats after 10; the pick study plots 14 groups and must tell them apart."""
+    styles = [(s["color"], s["linestyle"]) for s in map(group_style, range(40))]
+    assert len(set(styles)) == 40
+    assert group_style(0) == {"color": "C0", "linestyle": "-"} and group_style(13)["linestyle"] == "--"

@@ -215,6 +215,12 @@ def _steps_label(x, _pos=None) -> str:
     return f"{x / 1e6:.4g}M" if abs(x) >= 1e6 else f"{x / 1e3:.4g}k" if abs(x) >= 1e3 else f"{x:g}"
 
 
+def group_style(i: int) -> dict:
+    """Line style of the ``i``-th group: tab10's colours, then the same colours dashed, dotted, dash-dotted, so
+    that up to 40 groups stay distinguishable (matplotlib's default cycle repeats its colours after 10)."""
+    return {"color": f"C{i % 10}", "linestyle": ("-", "--", ":", "-.")[(i // 10) % 4]}
+
+
 def compare(run_dirs: list[Path], out_dir: Path, group_by: tuple[str, ...] = DEFAULT_GROUP_BY,
             labels: list[str] | None = None) -> dict[str, Path]:
     """Group ``run_dirs`` (by ``group_by``, or by ``labels``, one per run), write ``compare.png``,
@@ -244,17 +250,19 @@ def compare(run_dirs: list[Path], out_dir: Path, group_by: tuple[str, ...] = DEF
     ncols = min(3, len(panels))
     nrows = -(-len(panels) // ncols)
     fig, axes = plt.subplots(nrows, ncols, figsize=(5.2 * ncols, 3.8 * nrows), squeeze=False)
-    records = []
+    records, legend = [], {}  # one legend for the figure, outside the panels, in group order
     for ax, (source, column, title) in zip(axes.ravel(), panels):
         for i, g in enumerate(groups):
             frames = [getattr(r, source) for r in g.runs]
             agg = aggregate(frames, column)
             if agg.empty:
                 continue
-            color = f"C{i}"
-            ax.plot(agg["step"], agg["mean"], color=color, marker="o" if source == "eval" else None,
-                    ms=3, label=f"{g.label} (n={len(g.runs)})")
-            ax.fill_between(agg["step"], agg["mean"] - agg["std"], agg["mean"] + agg["std"], color=color, alpha=0.2)
+            style = group_style(i)
+            line, = ax.plot(agg["step"], agg["mean"], **style, marker="o" if source == "eval" else None,
+                            ms=3, label=f"{g.label} (n={len(g.runs)})")
+            legend.setdefault(i, line)
+            ax.fill_between(agg["step"], agg["mean"] - agg["std"], agg["mean"] + agg["std"], color=style["color"],
+                            alpha=0.2)
             for row in agg.itertuples(index=False):
                 records.append({"group": g.label, "source": source, "metric": column, "step": int(row.step),
                                 "n": int(row.n), "mean": float(row.mean), "std": float(row.std)})
@@ -263,16 +271,18 @@ def compare(run_dirs: list[Path], out_dir: Path, group_by: tuple[str, ...] = DEF
         ax.xaxis.set_major_formatter(FuncFormatter(_steps_label))
         ax.set_ylim(-0.02, 1.02)
         ax.grid(alpha=0.3)
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=8)
     for ax in axes.ravel()[len(panels):]:
         ax.set_visible(False)
     fig.suptitle(f"mean and std over the runs of each group ({title_key})", fontsize=10)
     fig.tight_layout()
+    if legend:
+        handles = [legend[i] for i in sorted(legend)]
+        fig.legend(handles, [h.get_label() for h in handles], loc="center left", bbox_to_anchor=(1.0, 0.5),
+                   fontsize=9, frameon=False)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {"png": out_dir / "compare.png", "csv": out_dir / "compare.csv", "md": out_dir / "compare.md"}
-    fig.savefig(paths["png"], dpi=110)
+    fig.savefig(paths["png"], dpi=110, bbox_inches="tight")
     plt.close(fig)
     pd.DataFrame.from_records(records, columns=["group", "source", "metric", "step", "n", "mean", "std"]).to_csv(
         paths["csv"], index=False)
