@@ -71,6 +71,7 @@ def test_overwrite_true_replaces_the_run(finished, tmp_path):
 @pytest.mark.parametrize("override,message", [
     ("total_frames=abc", "total_frames must be an integer, got 'abc'"),
     ("algo.gamma=high", "algo.gamma must be a number, got 'high'"),
+    ("eval.episode_seed=first", "eval.episode_seed must be an integer or null, got 'first'"),
 ])
 def test_a_value_of_the_wrong_type_is_one_line_and_the_fix(tmp_path, override, message):
     p = run(override, f"hydra.run.dir={tmp_path / 'r'}", cwd=tmp_path)

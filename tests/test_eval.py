@@ -151,3 +151,46 @@ def test_feature_groups_name_every_column_of_the_pick_reward_input():
     # an input the family names no layout for is one group
     valve = feature_groups(get_family("turn_valve"), DrSReward(2, ["observation", "stage_indicators"], {"observation": 30, "stage_indicators": 2}))
     assert valve == {"observation": (0, 30), "stage_indicators": (30, 32)}
+
+
+def _training_evaluations(tmp_path, *overrides):
+    """The start observations of two in-training evaluations (3 episodes each), with torch's global RNG
+    moved in between as learner updates move it."""
+    import torch
+    from hydra import compose, initialize_config_dir
+
+    from drs_torchrl.trainers.apps import conf_dir
+    from drs_torchrl.trainers.loop import Trainer
+
+    with initialize_config_dir(config_dir=conf_dir(), version_base=None):
+        cfg = compose("reuse", overrides=["reward=semi_sparse", "algo.hidden=[16,16]", "eval.episodes=3",
+                                          "env.max_episode_steps=5", "logger.progress_bar=false",
+                                          "logger.tensorboard=false", "algo.collector._target_=torchrl.collectors.Collector",
+                                          *overrides])
+    tr = Trainer(cfg, "reuse", tmp_path)
+    starts, rollout = [], tr.eval_env.rollout
+
+    def recording_rollout(*args, **kwargs):
+        ep = rollout(*args, **kwargs)
+        starts.append(ep[0]["observation"].clone())
+        return ep
+
+    tr.eval_env.rollout = recording_rollout
+    try:
+        tr.evaluate()
+        torch.rand(1000)
+        tr.evaluate()
+    finally:
+        tr.close()
+    return starts
+
+
+def test_training_evaluations_replay_the_same_episodes_with_episode_seed(tmp_path):
+    import torch
+
+    seeded = _training_evaluations(tmp_path / "seeded", "eval.episode_seed=100")
+    first, second = seeded[:3], seeded[3:]
+    assert all(torch.equal(a, b) for a, b in zip(first, second))  # the same 3 episodes at both evaluations
+    assert not torch.equal(first[0], first[1])  # distinct episodes within one evaluation
+    unseeded = _training_evaluations(tmp_path / "unseeded")
+    assert not all(torch.equal(a, b) for a, b in zip(unseeded[:3], unseeded[3:]))  # the default: new episodes

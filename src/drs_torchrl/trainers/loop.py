@@ -79,7 +79,7 @@ def requested_sac_share(cfg: DictConfig) -> float | None:
 # before anything compares or computes with it
 _NUMERIC = {
     "total_frames": int, "seed": int, "checkpoint_interval": int, "torch_threads": (int, type(None)),
-    "eval.interval": int, "eval.episodes": int, "logger.interval": int, "logger.episode_window": int,
+    "eval.interval": int, "eval.episodes": int, "eval.episode_seed": (int, type(None)), "logger.interval": int, "logger.episode_window": int,
     "algo.batch_size": int, "algo.frames_per_batch": int, "algo.learning_starts": int, "algo.buffer_size": int,
     "algo.utd": (int, float), "algo.gamma": (int, float), "algo.tau": (int, float),
     "reward.alpha": (int, float), "reward.stage_buffer_size": int,
@@ -138,6 +138,8 @@ def validate_config(cfg: DictConfig, phase: str) -> None:
         (a.learning_starts >= 0, f"algo.learning_starts must be >= 0, got {a.learning_starts}"),
         (a.buffer_size >= a.batch_size, f"algo.buffer_size ({a.buffer_size}) is smaller than algo.batch_size ({a.batch_size})"),
         (cfg.eval.episodes >= 0 and cfg.eval.interval > 0, "eval.episodes must be >= 0 and eval.interval > 0"),
+        (cfg.eval.get("episode_seed") is None or cfg.eval.episode_seed >= 0,
+         f"eval.episode_seed must be null or >= 0, got {cfg.eval.get('episode_seed')}"),
         (phase in ("learn", "reuse"), f"phase must be learn or reuse, got {phase}"),
     ]
     if phase == "learn" and cfg.reward.name in LEARNED:
@@ -446,9 +448,11 @@ class Trainer:
         n = int(self.cfg.eval.episodes)
         if n == 0:
             return {}
-        episodes = []
+        episodes, first_seed = [], self.cfg.eval.get("episode_seed")
         with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
-            for _ in range(n):
+            for j in range(n):
+                if first_seed is not None:  # a seeded reset: the same n episodes at every evaluation, in every run
+                    self.eval_env.set_seed(int(first_seed) + j, static_seed=True)
                 ep = self.eval_env.rollout(10_000, self.actor, break_when_any_done=True)
                 while ep.batch_dims > 1:  # a GPU env with num_envs=1 has batch (1, T)
                     ep = ep[0]
