@@ -79,7 +79,8 @@ def requested_sac_share(cfg: DictConfig) -> float | None:
 # before anything compares or computes with it
 _NUMERIC = {
     "total_frames": int, "seed": int, "checkpoint_interval": int, "torch_threads": (int, type(None)),
-    "eval.interval": int, "eval.episodes": int, "eval.episode_seed": (int, type(None)), "logger.interval": int, "logger.episode_window": int,
+    "eval.interval": int, "eval.episodes": int, "eval.episode_seed": (int, type(None)),
+    "logger.interval": int, "logger.episode_window": int,
     "algo.batch_size": int, "algo.frames_per_batch": int, "algo.learning_starts": int, "algo.buffer_size": int,
     "algo.utd": (int, float), "algo.gamma": (int, float), "algo.tau": (int, float),
     "reward.alpha": (int, float), "reward.stage_buffer_size": int,
