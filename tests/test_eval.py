@@ -55,9 +55,25 @@ def test_eval_records_one_mp4_frame_per_step(trained, tmp_path):
     assert frames[0].std() > 1  # a picture, not a blank frame
 
 
+def test_eval_episode_seed_fixes_each_episode_start(trained, tmp_path):
+    """--episode-seed S: episode i starts from seed S+i, whatever the number of episodes before it."""
+    rows = {}
+    for name, args in {"5x2": ["--episode-seed", "5", "--episodes", "2"], "6x1": ["--episode-seed", "6", "--episodes", "1"],
+                       "5x1": ["--episode-seed", "5", "--episodes", "1"]}.items():
+        p = run("drs-eval", str(trained), "--split", "test", *args, "--out", str(tmp_path / f"{name}.json"), cwd=trained)
+        assert p.returncode == 0, p.stderr[-2000:]
+        rows[name] = json.loads((tmp_path / f"{name}.json").read_text())["rows"]
+    assert [r["seed"] for r in rows["5x2"]] == [5, 6]
+    same = ("start", "length", "return", "stage", "success_once")
+    assert {k: rows["5x2"][1][k] for k in same} == {k: rows["6x1"][0][k] for k in same}
+    assert {k: rows["5x2"][0][k] for k in same} == {k: rows["5x1"][0][k] for k in same}
+    assert rows["5x2"][0]["start"] != rows["5x2"][1]["start"]  # two different starts
+
+
 @pytest.mark.parametrize("args,message", [
     (["--split", "cube_9cm"], "no variant 'cube_9cm'"),
     (["--episodes", "0"], "--episodes must be >= 1"),
+    (["--episode-seed", "-1"], "--episode-seed must be >= 0"),
 ])
 def test_eval_bad_input_is_one_line(trained, args, message):
     p = run("drs-eval", str(trained), *args, cwd=trained)

@@ -4,6 +4,7 @@
     drs-eval RUN_DIR --split test --episodes 50       # the held-out variants
     drs-eval RUN_DIR --split cube_1_5cm --override cube_half_size=0.016
     drs-eval RUN_DIR --episodes 3 --video videos/     # and an mp4 per episode (software Vulkan renders it)
+    drs-eval RUN_DIR --episode-seed 0                 # episode i starts from seed i: the same starts for every run
 
 Per episode: ``success_once`` (success at any step), ``success_at_end`` (at the last step; the same
 here because episodes end on success, as in the authors' code), the highest stage reached, the
@@ -38,11 +39,24 @@ def _run_reward(run_dir: Path, cfg):
     return load_reward(path)
 
 
+def start_fingerprint(start) -> str:
+    """12 hex digits naming an episode's start state, so that two reports can show they met the same episodes."""
+    import hashlib
+
+    obs = torch.cat([start.get(k).detach().float().reshape(-1).cpu() for k in sorted(start.keys(True, True), key=str)
+                     if k not in ("done", "terminated", "truncated") and start.get(k).dtype.is_floating_point])
+    return hashlib.sha1(obs.numpy().round(5).tobytes()).hexdigest()[:12]
+
+
 def evaluate_run(run_dir: str | Path, *, episodes: int = 10, split: str | None = None, overrides: dict | None = None,
                  deterministic: bool = True, seed: int = 12345, video_dir: str | Path | None = None,
-                 keep_episodes: bool = False) -> dict:
+                 keep_episodes: bool = False, episode_seed: int | None = None) -> dict:
     """Roll out the policy of ``run_dir`` for ``episodes`` episodes; returns per-episode rows and means
-    (and, with ``keep_episodes``, each episode's stage and reward per step under ``"episodes"``)."""
+    (and, with ``keep_episodes``, each episode's stage and reward per step under ``"episodes"``).
+
+    ``episode_seed=S`` resets episode i with seed S + i (the trainer's ``eval.episode_seed``): episode i then
+    starts from the same state whatever the number of episodes or the policy, so two runs' reports pair up.
+    Without it only the first reset is seeded (``seed``) and later starts follow torch's global RNG."""
     from omegaconf import OmegaConf
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
@@ -58,6 +72,8 @@ def evaluate_run(run_dir: str | Path, *, episodes: int = 10, split: str | None =
         raise EvalError(f"{run_dir} is not a drs-learn/drs-reuse run directory (no config.yaml)")
     if episodes < 1:
         raise EvalError(f"--episodes must be >= 1, got {episodes}")
+    if episode_seed is not None and episode_seed < 0:
+        raise EvalError(f"--episode-seed must be >= 0, got {episode_seed}")
     cfg = OmegaConf.load(run_dir / "config.yaml")
     family = family_from_config(cfg.env)
     split = split or cfg.env.split
@@ -85,6 +101,8 @@ def evaluate_run(run_dir: str | Path, *, episodes: int = 10, split: str | None =
         for i in range(episodes):
             frames = []
             callback = (lambda e, td: frames.append(e.base_env.render_frame())) if video_dir else None
+            if episode_seed is not None:
+                env.set_seed(episode_seed + i, static_seed=True)
             start = env.reset()
             if video_dir:
                 frames.append(env.base_env.render_frame())  # the start state
@@ -102,7 +120,8 @@ def evaluate_run(run_dir: str | Path, *, episodes: int = 10, split: str | None =
                 from drs_torchrl.transforms.classifier_reward import ClassifierReward
 
                 r = reward.reward(ep if isinstance(reward, ClassifierReward) else nxt)
-            row = {"episode": i, "success_once": bool(success.any()), "success_at_end": bool(success[-1]),
+            row = {"episode": i, **({"seed": episode_seed + i} if episode_seed is not None else {}),
+                   "start": start_fingerprint(start), "success_once": bool(success.any()), "success_at_end": bool(success[-1]),
                    "stage": int(nxt.get("stage").max()), "length": int(ep.shape[-1]), "return": float(r.sum())}
             if video_dir and frames:
                 import imageio
@@ -118,7 +137,7 @@ def evaluate_run(run_dir: str | Path, *, episodes: int = 10, split: str | None =
     n = family.num_stages
     summary = {
         "run_dir": str(run_dir), "family": family.name, "split": split, "overrides": overrides or {},
-        "episodes": episodes, "deterministic": deterministic, "policy_frames": meta.get("frames"),
+        "episodes": episodes, "episode_seed": episode_seed, "deterministic": deterministic, "policy_frames": meta.get("frames"),
         "success_once": float(np.mean([r["success_once"] for r in rows])),
         "success_at_end": float(np.mean([r["success_at_end"] for r in rows])),
         "return": float(np.mean([r["return"] for r in rows])),
@@ -139,7 +158,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--split", default=None, help="train | test | a variant name (default: the run's split)")
     p.add_argument("--override", action="append", default=[], metavar="K=V", help="a variant parameter, e.g. cube_half_size=0.016")
     p.add_argument("--stochastic", action="store_true", help="sample actions instead of the deterministic policy")
-    p.add_argument("--seed", type=int, default=12345)
+    p.add_argument("--seed", type=int, default=12345, help="the env's seed (its first reset)")
+    p.add_argument("--episode-seed", type=int, default=None, metavar="S",
+                   help="reset episode i with seed S+i: the same starts in every call and every run (as eval.episode_seed)")
     p.add_argument("--video", metavar="DIR", help="record each episode to DIR/*.mp4")
     p.add_argument("--out", help="where to write the JSON report (default RUN_DIR/eval_<split>.json)")
     a = p.parse_args(argv)
@@ -156,7 +177,8 @@ def main(argv: list[str] | None = None) -> int:
                 raise EvalError(f"--override takes K=V, got {o!r}")
             overrides[k] = yaml.safe_load(v)
         res = evaluate_run(a.run_dir, episodes=a.episodes, split=a.split, overrides=overrides,
-                           deterministic=not a.stochastic, seed=a.seed, video_dir=a.video)
+                           deterministic=not a.stochastic, seed=a.seed, video_dir=a.video,
+                           episode_seed=a.episode_seed)
     except (EvalError, KeyError, ValueError, FileNotFoundError) as exc:
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
         print(f"drs-eval: error: {msg}", file=sys.stderr)
