@@ -39,6 +39,13 @@ def test_grid_names_runs_and_passes_every_override(tmp_path):
     ({"root": "r", "runs": [{"name": "a", "needs": ["b"]}]}, "needs \\['b'\\]"),
     ({"root": "r", "runs": [{"name": "a", "app": "train"}]}, "learn or reuse"),
     ({"root": "r", "gird": {}}, "unknown keys"),
+    ({"root": "r", "runs": [{"name": "a_s0"}], "figures": {"main": {"groups": ["b"]}}}, "groups \\['b'\\] name no run.*its groups: a"),
+    ({"root": "r", "runs": [{"name": "a_s0"}], "figures": {"main": {"groups": []}}}, "non-empty 'groups'"),
+    ({"root": "r", "runs": [{"name": "a_s0"}], "figures": {"../x": {"groups": ["a"]}}}, "plain folder name"),
+    ({"root": "r", "runs": [{"name": "a_s0"}], "figures": {"m": {"groups": ["a"], "colour": 1}}}, "unknown keys \\['colour'\\]"),
+    ({"root": "r", "runs": [{"name": "a_s0"}], "figures": {"m": {"groups": ["a"], "labels": {"b": "B"}}}}, "labels for \\['b'\\]"),
+    ({"root": "r", "runs": [{"name": "a_s0"}, {"name": "b_s0"}], "figures": {"m": {"groups": ["a", "b"], "labels": {"a": "b"}}}},
+     "drawn as one"),
 ])
 def test_bad_study_files_are_refused_by_name(tmp_path, spec, message):
     with pytest.raises(StudyError, match=message):
@@ -156,6 +163,36 @@ def test_report_copies_the_record_and_compares_by_run_name(tmp_path, capsys):
     # a report into the run root would mix the record with the runs
     assert main([str(study), "--report", str(root / "r")]) == 2
     assert "inside the study's run root" in capsys.readouterr().err
+
+
+def test_report_draws_the_study_files_figures_with_their_groups_order_and_labels(tmp_path, capsys):
+    """A study of many groups names curated figures: only their groups, in their order, with display labels."""
+    from drs_torchrl.study import main
+
+    root = tmp_path / "runs"
+    study = write(tmp_path, {"root": str(root), "app": "reuse", "common": ["total_frames=3000"], "runs": [
+        {"name": "drs_s0", "args": []}, {"name": "drs_s1", "args": []}, {"name": "sparse_s0", "args": []},
+        {"name": "ablation_s0", "args": []}, {"name": "gail_s0", "args": []}],
+        "figures": {"main": {"title": "held-out variants", "groups": ["sparse", "drs", "gail"], "labels": {"drs": "DrS"}},
+                    "ablations": {"groups": ["drs", "ablation"]}}})
+    _fake_run(root / "drs_s0", "drs", 0, [0.0, 0.6, 1.0], 3000, complete=True)
+    _fake_run(root / "drs_s1", "drs", 1, [0.0, 0.2, 0.6], 3000, complete=True)
+    _fake_run(root / "sparse_s0", "sparse", 0, [0.0, 0.0, 0.0], 3000, complete=True)
+    _fake_run(root / "ablation_s0", "drs", 0, [0.0, 0.0, 0.5], 3000, complete=True)
+    for name in ("drs_s0", "drs_s1", "sparse_s0", "ablation_s0"):
+        (root / name / "summary.json").write_text(json.dumps({"frames": 3000, "interrupted": False}))
+    # gail_s0 has not started: the figure is drawn without it and the report says so
+    out = tmp_path / "results"
+    assert main([str(study), "--report", str(out)]) == 0
+    assert "figure main: no finished runs yet for ['gail']" in capsys.readouterr().err
+    md = (out / "figures" / "main" / "compare.md").read_text()
+    assert md.startswith("**held-out variants**")
+    table = [line for line in md.splitlines() if line.startswith("| ") and "(" in line and "runs (seeds)" not in line]
+    assert [line.split(" | ")[0] for line in table[:2]] == ["| sparse", "| DrS"]   # the figure's order and labels
+    assert "| DrS | 2 (0, 1) |" in md and "ablation" not in md.split("Runs:")[0]
+    assert (out / "figures" / "main" / "compare.png").is_file()
+    abl = (out / "figures" / "ablations" / "compare.md").read_text()
+    assert "| drs | 2 (0, 1) |" in abl and "| ablation | 1 (0) |" in abl and "sparse" not in abl.split("Runs:")[0]
 
 
 def test_a_fresh_checkout_skips_what_its_record_holds_and_reuses_its_rewards(tmp_path, capsys):

@@ -222,9 +222,9 @@ def group_style(i: int) -> dict:
 
 
 def compare(run_dirs: list[Path], out_dir: Path, group_by: tuple[str, ...] = DEFAULT_GROUP_BY,
-            labels: list[str] | None = None) -> dict[str, Path]:
+            labels: list[str] | None = None, title: str = "") -> dict[str, Path]:
     """Group ``run_dirs`` (by ``group_by``, or by ``labels``, one per run), write ``compare.png``,
-    ``compare.csv`` and ``compare.md`` into ``out_dir``."""
+    ``compare.csv`` and ``compare.md`` into ``out_dir``; ``title`` heads the figure and the table."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -251,7 +251,7 @@ def compare(run_dirs: list[Path], out_dir: Path, group_by: tuple[str, ...] = DEF
     nrows = -(-len(panels) // ncols)
     fig, axes = plt.subplots(nrows, ncols, figsize=(5.2 * ncols, 3.8 * nrows), squeeze=False)
     records, legend = [], {}  # one legend for the figure, outside the panels, in group order
-    for ax, (source, column, title) in zip(axes.ravel(), panels):
+    for ax, (source, column, panel_title) in zip(axes.ravel(), panels):
         for i, g in enumerate(groups):
             frames = [getattr(r, source) for r in g.runs]
             agg = aggregate(frames, column)
@@ -266,14 +266,14 @@ def compare(run_dirs: list[Path], out_dir: Path, group_by: tuple[str, ...] = DEF
             for row in agg.itertuples(index=False):
                 records.append({"group": g.label, "source": source, "metric": column, "step": int(row.step),
                                 "n": int(row.n), "mean": float(row.mean), "std": float(row.std)})
-        ax.set_title(title, fontsize=10)
+        ax.set_title(panel_title, fontsize=10)
         ax.set_xlabel("env steps")
         ax.xaxis.set_major_formatter(FuncFormatter(_steps_label))
         ax.set_ylim(-0.02, 1.02)
         ax.grid(alpha=0.3)
     for ax in axes.ravel()[len(panels):]:
         ax.set_visible(False)
-    fig.suptitle(f"mean and std over the runs of each group ({title_key})", fontsize=10)
+    fig.suptitle((f"{title}\n" if title else "") + f"mean and std over the runs of each group ({title_key})", fontsize=10)
     fig.tight_layout()
     if legend:
         handles = [legend[i] for i in sorted(legend)]
@@ -289,9 +289,10 @@ def compare(run_dirs: list[Path], out_dir: Path, group_by: tuple[str, ...] = DEF
     rows = summary_rows(groups)
     horizon = rows[0]["auc_horizon"] if rows else float("nan")
     h = _steps_label(horizon) if horizon == horizon else "-"
-    lines = [f"| {' / '.join(group_by) if labels is None else 'runs'} | runs (seeds) | env steps (shortest run) | final eval success per run | "
-             f"mean +- std | mean of the last 3 evals | success AUC to {h} (mean +- std) | mean success >= 0.5 first at |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = [f"**{title}**", ""] if title else []
+    lines += [f"| {' / '.join(group_by) if labels is None else 'runs'} | runs (seeds) | env steps (shortest run) | final eval success per run | "
+              f"mean +- std | mean of the last 3 evals | success AUC to {h} (mean +- std) | mean success >= 0.5 first at |",
+              "|---|---|---|---|---|---|---|---|"]
     for row in rows:
         finals = ", ".join(f"{x:.2f}" for x in row["final"]) or "(no eval yet)"
         ms = f"{row['final_mean']:.2f} +- {row['final_std']:.2f}" if row["final"] else "-"

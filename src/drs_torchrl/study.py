@@ -18,6 +18,8 @@ Study file::
     runs:                                # optional extra runs; needs: runs that must finish first
       - {name: reuse-drs-s0, app: reuse, args: [reward=drs, reward.checkpoint=<reward:learn-s0>], needs: [learn-s0]}
     record: results/precision            # optional: the folder --report writes (see below)
+    figures:                             # optional: curated comparisons, --report writes OUT/figures/<name>/
+      main: {title: "reuse on held-out variants", groups: [drs, sparse], labels: {drs: DrS}}
 
 ``<root>`` in an argument is the run root; ``<reward:NAME>`` and ``<policy:NAME>`` are phase-1 run NAME's
 reward and policy checkpoints (``<root>/NAME/checkpoints/reward.pt``, or the committed
@@ -41,7 +43,9 @@ what a results folder commits, never training states: ``OUT/run_files/<run>/`` (
 ``eval.csv``, ``config.yaml``, ``summary.json``; a phase-1 run's ``reward.pt`` and ``policy.pt`` too), ``OUT/status.md``
 (each run's state, env steps and last evaluation, and the run-hours left), and ``drs-compare`` of the finished phase-2 runs into
 ``OUT/`` and of the finished phase-1 runs into ``OUT/learn/`` (a run still going would cut every curve's
-horizon), grouped by run name without its seed (``drs_s0``, ``drs_s1`` -> ``drs``).
+horizon), grouped by run name without its seed (``drs_s0``, ``drs_s1`` -> ``drs``). A study with many groups
+also names ``figures``: each compares the listed groups only, in that order (so their colours), with the given
+display labels and title, into ``OUT/figures/<name>/`` (``compare.png/.csv/.md``).
 """
 from __future__ import annotations
 
@@ -97,7 +101,7 @@ def load_study(path: str | Path) -> tuple[Path, list[Run]]:
         raise StudyError(f"{path} is not a YAML study file ({type(exc).__name__})") from None
     if not isinstance(spec, dict) or "root" not in spec:
         raise StudyError(f"{path}: a study file is a mapping with at least 'root' and 'grid' or 'runs'")
-    allowed = ("root", "app", "common", "grid", "runs", "description", "record")
+    allowed = ("root", "app", "common", "grid", "runs", "description", "record", "figures")
     unknown = set(spec) - set(allowed)
     if unknown:
         raise StudyError(f"{path}: unknown keys {sorted(unknown)} (allowed: {', '.join(allowed)})")
@@ -131,7 +135,53 @@ def load_study(path: str | Path) -> tuple[Path, list[Run]]:
         for kind, ref in (m for a in r.args for m in _CHECKPOINT_REF.findall(a)):
             if ref not in r.needs:
                 raise StudyError(f"{path}: run {r.name} uses <{kind}:{ref}> but does not list {ref} in its needs")
+    _parse_figures(path, spec.get("figures"), runs)
     return root, runs
+
+
+@dataclass
+class Figure:
+    """A curated comparison of some of a study's groups (run names without their seeds)."""
+    name: str
+    groups: list[str]
+    title: str = ""
+    labels: dict[str, str] = field(default_factory=dict)
+
+
+def _parse_figures(path: Path, spec, runs: list[Run]) -> list[Figure]:
+    if spec is None:
+        return []
+    if not isinstance(spec, dict):
+        raise StudyError(f"{path}: 'figures' maps a figure name to {{groups: [...], title: ..., labels: {{...}}}}")
+    known = list(dict.fromkeys(group_name(r.name) for r in runs))
+    figures = []
+    for name, fig in spec.items():
+        if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", str(name)):
+            raise StudyError(f"{path}: figure name {name!r} is not a plain folder name (letters, digits, _ . -)")
+        if not isinstance(fig, dict) or not isinstance(fig.get("groups"), list) or not fig["groups"]:
+            raise StudyError(f"{path}: figure {name}: give a non-empty 'groups' list (run names without their seeds)")
+        bad = set(fig) - {"groups", "title", "labels"}
+        if bad:
+            raise StudyError(f"{path}: figure {name}: unknown keys {sorted(bad)} (allowed: groups, title, labels)")
+        groups = [str(g) for g in fig["groups"]]
+        unknown = [g for g in groups if g not in known]
+        if unknown:
+            raise StudyError(f"{path}: figure {name}: groups {unknown} name no run of the study (its groups: {', '.join(known)})")
+        labels = {str(k): str(v) for k, v in (fig.get("labels") or {}).items()}
+        stray = [k for k in labels if k not in groups]
+        if stray:
+            raise StudyError(f"{path}: figure {name}: labels for {stray}, which are not among its groups")
+        shown = [labels.get(g, g) for g in groups]
+        if len(set(shown)) < len(shown):
+            raise StudyError(f"{path}: figure {name}: two groups would be drawn as one (labels {shown})")
+        figures.append(Figure(str(name), groups, str(fig.get("title") or ""), labels))
+    return figures
+
+
+def load_figures(path: str | Path) -> list[Figure]:
+    """The study file's ``figures`` (validated against its runs), in file order."""
+    _, runs = load_study(path)
+    return _parse_figures(Path(path), (yaml.safe_load(Path(path).read_text()) or {}).get("figures"), runs)
 
 
 def load_record(path: str | Path) -> Path | None:
@@ -361,8 +411,9 @@ def work_left(root: Path, record: Path | None, runs: list[Run], states: dict[str
 
 
 def report(root: Path, runs: list[Run], out: Path, study_file: str | Path = "",
-           record: Path | None = None) -> dict[str, Path]:
-    """Copy each run's record into ``out/run_files``, write ``out/status.md`` and the comparisons.
+           record: Path | None = None, figures: list[Figure] | None = None) -> dict[str, Path]:
+    """Copy each run's record into ``out/run_files``, write ``out/status.md`` and the comparisons (and each of
+    ``figures`` into ``out/figures/<name>/``).
 
     A run with no directory under ``root`` keeps the record ``out`` (or the study's ``record``) already
     holds, so a report from a fresh checkout neither loses nor misstates what earlier sessions ran."""
@@ -415,6 +466,23 @@ def report(root: Path, runs: list[Run], out: Path, study_file: str | Path = "",
                 print(f"drs-study: report: {key} runs not compared: {exc}", file=sys.stderr)
                 continue
             paths.update({f"{key}_{k}": v for k, v in made.items()})
+    finished = {group_name(d.name): [] for d in copied["reuse"] + copied["learn"]}
+    for d in copied["reuse"] + copied["learn"]:
+        finished[group_name(d.name)].append(d)
+    for fig in figures or []:
+        dirs = [d for g in fig.groups for d in finished.get(g, [])]
+        missing = [g for g in fig.groups if g not in finished]
+        if missing:
+            print(f"drs-study: report: figure {fig.name}: no finished runs yet for {missing}", file=sys.stderr)
+        if not dirs:
+            continue
+        try:
+            made = compare(dirs, out / "figures" / fig.name, title=fig.title,
+                           labels=[fig.labels.get(group_name(d.name), group_name(d.name)) for d in dirs])
+        except CompareError as exc:
+            print(f"drs-study: report: figure {fig.name} not drawn: {exc}", file=sys.stderr)
+            continue
+        paths.update({f"figure_{fig.name}_{k}": v for k, v in made.items()})
     return paths
 
 
@@ -456,7 +524,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"drs-study: error: --report {a.report} is inside the study's run root {root}: give a results folder",
                   file=sys.stderr)
             return 2
-        for path in report(root, runs, a.report, a.study, record).values():
+        for path in report(root, runs, a.report, a.study, record, load_figures(a.study)).values():
             print(path)
         return 0
     if a.status:
