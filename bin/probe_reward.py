@@ -37,8 +37,10 @@ def spearman(x: np.ndarray, y: np.ndarray) -> float:
     return float(spearmanr(x, y).statistic)
 
 
-def rollout(policy_dir, reward, split: str, episodes: int, seed: int, deterministic: bool) -> dict:
-    """Per next state of ``episodes`` episodes: stage, tanh(D_k) for every k, dense reward; and the success rate."""
+def rollout(policy_dir, reward, split: str, episodes: int, seed: int, deterministic: bool,
+            variant_overrides: dict | None = None) -> dict:
+    """Per next state of ``episodes`` episodes: stage, tanh(D_k) for every k, dense reward; and the success rate.
+    ``variant_overrides`` update the policy run's (e.g. ``placed_thresh``: label the stages as the reward's run did)."""
     from omegaconf import OmegaConf
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
@@ -49,7 +51,7 @@ def rollout(policy_dir, reward, split: str, episodes: int, seed: int, determinis
     cfg = OmegaConf.load(Path(policy_dir) / "config.yaml")
     # a reward that reads the task state gets it from the env, whatever the policy's run had
     family = with_task_observation(family_from_config(cfg.env), TASK_OBSERVATION_KEY in reward.reward_in_keys)
-    overrides = OmegaConf.to_container(cfg.env.variant_overrides) or None
+    overrides = {**(OmegaConf.to_container(cfg.env.variant_overrides) or {}), **(variant_overrides or {})} or None
     env = make_family_env(family, split, seed=seed, variant_overrides=overrides, reward_mode="normalized_dense",
                           control_mode=cfg.env.control_mode, max_episode_steps=cfg.env.max_episode_steps)
     actor, _ = load_policy(policy_dir, env.observation_spec, env.action_spec, family=family.name)
@@ -129,8 +131,16 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--swap-with", default=None, metavar="RUN_DIR",
                    help="a second policy: swap input groups between its stage-k states and --policy's (first split)")
+    p.add_argument("--variant-override", action="append", default=[], metavar="KEY=VALUE",
+                   help="an env variant parameter over the policy run's (repeatable), e.g. placed_thresh=0.05 to label "
+                        "the stages as a reward learned with that threshold does")
     p.add_argument("--out", type=Path, required=True)
     a = p.parse_args(argv)
+    try:
+        a.overrides = {k: float(v) if v.replace(".", "", 1).replace("-", "", 1).isdigit() else v
+                       for k, v in (o.split("=", 1) for o in a.variant_override)}
+    except ValueError:
+        p.error(f"--variant-override takes KEY=VALUE, got {a.variant_override}")
     from drs_torchrl.console import quiet_libraries
     from drs_torchrl.transforms.reward import DrSReward, load_reward
 
@@ -141,16 +151,17 @@ def main(argv=None) -> int:
     if not isinstance(reward, DrSReward):
         p.error(f"{a.reward} is not a DrS reward")
     a.out.mkdir(parents=True, exist_ok=True)
-    report, data = {"reward": a.reward, "policy": a.policy, "episodes": a.episodes,
+    report, data = {"reward": a.reward, "policy": a.policy, "episodes": a.episodes, "variant_overrides": a.overrides,
                     "actions": "deterministic" if a.deterministic else "sampled", "splits": {}}, {}
     for split in a.splits:
-        data[split] = rollout(a.policy, reward, split, a.episodes, a.seed, a.deterministic)
+        data[split] = rollout(a.policy, reward, split, a.episodes, a.seed, a.deterministic, a.overrides)
         report["splits"][split] = {"success_rate": data[split]["success_rate"], "stages": summarize(data[split])}
         print(f"{split}: success {data[split]['success_rate']:.2f}", file=sys.stderr)
     (a.out / "probe.json").write_text(json.dumps(report, indent=1))
     if a.swap_with:
         write_feature_swap(a, reward, data[a.splits[0]])
-    lines = [f"Reward `{a.reward}` along {a.episodes} episodes ({report['actions']} actions) of the policy `{a.policy}`.",
+    lines = [f"Reward `{a.reward}` along {a.episodes} episodes ({report['actions']} actions) of the policy `{a.policy}`"
+             + (f", env variant overrides {a.overrides} (stages labelled with them)." if a.overrides else "."),
              "Spearman: rank correlation of tanh(D_k(s')) with ManiSkill's normalized dense reward over the stage-k states.", "",
              "| split | policy success | stage k | states | tanh(D_k) mean [min, max] | Spearman vs dense |", "|---|---|---|---|---|---|"]
     for split, r in report["splits"].items():
@@ -181,7 +192,7 @@ def main(argv=None) -> int:
 
 def write_feature_swap(a, reward, first: dict) -> None:
     split = a.splits[0]
-    other = rollout(a.swap_with, reward, split, a.episodes, a.seed, a.deterministic)
+    other = rollout(a.swap_with, reward, split, a.episodes, a.seed, a.deterministic, a.overrides)
     groups = feature_groups(first["family"], reward)
     out = {"reward": a.reward, "a": a.policy, "b": a.swap_with, "split": split, "episodes": a.episodes, "stages": []}
     lines = [f"Which inputs drive `tanh(D_k)` of `{a.reward}`: stage-k states of A = `{a.policy}` and B = `{a.swap_with}`",

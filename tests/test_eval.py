@@ -120,6 +120,24 @@ def test_reward_probe_reports_every_stage_with_a_rank_correlation(trained, tmp_p
     assert (tmp_path / "probe.png").stat().st_size > 1000 and "Spearman" in (tmp_path / "probe.md").read_text()
 
 
+def test_reward_probe_labels_stages_with_a_variant_override_that_reaches_the_env(trained, tmp_path):
+    """--variant-override placed_thresh=... labels the stages as a reward learned at that threshold does."""
+    def probe(*extra):
+        return subprocess.run([sys.executable, str(Path(__file__).parents[1] / "bin" / "probe_reward.py"),
+                               "--reward", str(trained / "checkpoints" / "reward.pt"), "--policy", str(trained),
+                               "--splits", "test", "--episodes", "1", "--out", str(tmp_path), *extra],
+                              capture_output=True, text=True, timeout=600, cwd=tmp_path)
+
+    p = probe("--variant-override", "placed_thresh=0.05")
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert json.loads((tmp_path / "probe.json").read_text())["variant_overrides"] == {"placed_thresh": 0.05}
+    assert "{'placed_thresh': 0.05} (stages labelled with them)" in (tmp_path / "probe.md").read_text()
+    p = probe("--variant-override", "placed_thresh=-1")   # the env itself refuses it: the override got there
+    assert p.returncode != 0 and "placed_thresh must be >= 0" in p.stderr
+    p = probe("--variant-override", "placed_thresh")
+    assert p.returncode == 2 and "KEY=VALUE" in p.stderr
+
+
 def test_spearman_of_the_probe_ranks_and_refuses_degenerate_inputs():
     sys.path.insert(0, str(Path(__file__).parents[1] / "bin"))
     from probe_reward import spearman
