@@ -340,3 +340,18 @@ def test_status_counts_the_env_steps_and_hours_a_study_has_left(tmp_path, capsys
     line = work_left(tmp_path / "elsewhere", out, runs, states, jobs=1)
     assert "at most 15,000 env steps" in line and "at 50.0 env steps/s per run (median of 1 recorded runs) about 5 min of runs" in line
     assert work_left(root, None, runs, dict.fromkeys(states, "finished")) == "left: nothing, all 4 runs done"
+
+
+def test_every_committed_study_file_loads_with_its_figures():
+    """The study files the README points at parse, name their runs' needs and draw only groups they define."""
+    from drs_torchrl.study import load_figures
+
+    files = sorted((Path(__file__).parents[1] / "results").rglob("study.yaml"))
+    assert len(files) >= 2
+    for f in files:
+        _, runs = load_study(f)
+        assert runs, f
+        for fig in load_figures(f):
+            assert fig.groups, (f, fig.name)
+    pick = {fig.name: fig for fig in load_figures(Path(__file__).parents[1] / "results/reuse/pick_cube/study.yaml")}
+    assert pick["main"].groups[:4] == ["drs-sacdemos", "dense", "semi_sparse", "sparse"]
