@@ -136,9 +136,10 @@ def main(argv=None) -> int:
                         "the stages as a reward learned with that threshold does")
     p.add_argument("--out", type=Path, required=True)
     a = p.parse_args(argv)
-    try:
-        a.overrides = {k: float(v) if v.replace(".", "", 1).replace("-", "", 1).isdigit() else v
-                       for k, v in (o.split("=", 1) for o in a.variant_override)}
+    try:  # values typed as YAML reads them, as Hydra overrides are
+        import yaml
+
+        a.overrides = {k: yaml.safe_load(v) for k, v in (o.split("=", 1) for o in a.variant_override)}
     except ValueError:
         p.error(f"--variant-override takes KEY=VALUE, got {a.variant_override}")
     from drs_torchrl.console import quiet_libraries

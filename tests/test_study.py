@@ -349,9 +349,6 @@ def test_every_committed_study_file_loads_with_its_figures():
     files = sorted((Path(__file__).parents[1] / "results").rglob("study.yaml"))
     assert len(files) >= 2
     for f in files:
-        _, runs = load_study(f)
-        assert runs, f
-        for fig in load_figures(f):
-            assert fig.groups, (f, fig.name)
+        load_figures(f)   # raises StudyError naming what is wrong
     pick = {fig.name: fig for fig in load_figures(Path(__file__).parents[1] / "results/reuse/pick_cube/study.yaml")}
     assert pick["main"].groups[:4] == ["drs-sacdemos", "dense", "semi_sparse", "sparse"]

@@ -466,9 +466,9 @@ def report(root: Path, runs: list[Run], out: Path, study_file: str | Path = "",
                 print(f"drs-study: report: {key} runs not compared: {exc}", file=sys.stderr)
                 continue
             paths.update({f"{key}_{k}": v for k, v in made.items()})
-    finished = {group_name(d.name): [] for d in copied["reuse"] + copied["learn"]}
+    finished: dict[str, list[Path]] = {}
     for d in copied["reuse"] + copied["learn"]:
-        finished[group_name(d.name)].append(d)
+        finished.setdefault(group_name(d.name), []).append(d)
     for fig in figures or []:
         dirs = [d for g in fig.groups for d in finished.get(g, [])]
         missing = [g for g in fig.groups if g not in finished]
