@@ -36,6 +36,7 @@ from drs_torchrl.data.persistence import SnapshotError, dump_buffer, load_buffer
 from drs_torchrl.demos import check_demos, load_demos, restage_demos, variant_mismatches
 from drs_torchrl.envs.factory import make_family_env
 from drs_torchrl.models import POLICY_FORMAT, POLICY_INTERMEDIATE_KEYS, read_policy_checkpoint
+from drs_torchrl.provenance import code_version
 from drs_torchrl.precision import autocast, describe_precision, grad_scaler, resolve_precision
 from drs_torchrl.rewards import LEARNED, reward_setup
 from drs_torchrl.transforms.classifier_reward import ClassifierReward
@@ -151,7 +152,10 @@ def validate_config(cfg: DictConfig, phase: str) -> None:
         if not ok:
             raise ConfigError(msg)
     requested_sac_share(cfg)
-    if not (cfg.get("demos") or {}).get("stage_buffers", True) and (phase != "learn" or cfg.reward.name != "drs"):
+    stage_buffers = (cfg.get("demos") or {}).get("stage_buffers", True)
+    if stage_buffers not in (True, False, "auto"):
+        raise ConfigError(f"demos.stage_buffers must be true, false or auto, got {stage_buffers!r}")
+    if stage_buffers is False and (phase != "learn" or cfg.reward.name != "drs"):
         raise ConfigError("demos.stage_buffers=false is for drs-learn reward=drs (the demonstrations in the SAC batch "
                           f"only); this run is drs-{phase} reward={cfg.reward.name}")
     stop = cfg.get("stop_at_success")
@@ -244,7 +248,7 @@ class Trainer:
             # TorchRL's weight-sync scheme, whose __del__ deadlocks at interpreter exit) alive until then
             # demos.stage_buffers=false: the demonstrations feed the SAC batch only, so the discriminators'
             # positives are the agent's own successes (no "moves like the demonstrator" shortcut; results/reuse/pick_cube/)
-            filed = demos if bool((cfg.get("demos") or {}).get("stage_buffers", True)) else None
+            filed = demos if self._resolve_stage_buffers(cfg, demos, asked) else None
             self.learner = make_reward_learner(cfg, family, self.env, self.device, self.precision,
                                                functools.partial(backward_and_step, self._grad_scaler),
                                                demos=None if (resume and reward.name == "drs") else filed)
@@ -264,7 +268,7 @@ class Trainer:
         # (its storage lives on the learner's device, where the reward transform runs)
         # (with demos.sac_share, the demonstrations' own buffer fills its share of each batch, the agent's the rest)
         self.demo_replay, self._demo_batch = self._demo_transitions(cfg, demos if self.learner is not None else None)
-        if demos and not (cfg.get("demos") or {}).get("stage_buffers", True) and self._demo_batch == 0:
+        if demos and (cfg.get("demos") or {}).get("stage_buffers", True) is False and self._demo_batch == 0:
             raise ConfigError(f"demos.stage_buffers=false keeps the demonstrations out of the stage buffers, and demos.sac_share "
                               f"is {cfg.demos.sac_share}: they would not be used at all; set demos.sac_share=0.25 "
                               "(demonstrations with the agent's actions: drs-demos' default) or demos.stage_buffers=true")
@@ -372,6 +376,23 @@ class Trainer:
     def _control_mode(self, cfg) -> str:
         """The controller this run's agent acts with (env.control_mode, else its split's, else the family's)."""
         return cfg.env.control_mode or self.family.env_args(cfg.env.split).get("control_mode") or self.family.control_mode
+
+    def _resolve_stage_buffers(self, cfg, demos, asked) -> bool:
+        """``demos.stage_buffers``: true / false as asked; ``auto`` (the default recipe, docs/recipe.md) keeps
+        DrS's demonstrations out of the stage buffers when they can feed the SAC batch (they carry the agent's
+        actions and ``demos.sac_share`` is not 0), so the positives are the agent's own successes; saved resolved."""
+        want = (cfg.get("demos") or {}).get("stage_buffers", True)
+        if want != "auto":
+            return bool(want)
+        sac_only = bool(demos) and self.reward.name == "drs" and asked != 0 and "action" in demos[0].keys() \
+            and "state" in demos[0].keys() and int(demos[0]["action"].shape[-1]) == int(self.env.action_spec.shape[-1])
+        if demos:
+            tqdm.write(f"drs-{self.phase}: demos.stage_buffers=auto -> {str(not sac_only).lower()}: " + (
+                "the demonstrations feed the SAC batch only; the discriminators' positives are the agent's own successes"
+                if sac_only else "the demonstrations go into the top stage buffer (the paper's Algorithm 1, line 3)"))
+        with open_dict(cfg):
+            cfg.demos.stage_buffers = not sac_only
+        return not sac_only
 
     def _sac_share_problems(self, cfg, demos) -> list[str]:
         """Why the demonstrations cannot fill a share of the SAC batch (empty when they can)."""
@@ -618,7 +639,7 @@ class Trainer:
         cfg = self.cfg
         total = int(cfg.total_frames)
         summary: dict[str, Any] = {"phase": self.phase, "run_dir": str(self.run_dir), "resumed_from": self.resumed_from,
-                                   "precision": self.precision, "init_from": cfg.get("init_from")}
+                                   "precision": self.precision, "init_from": cfg.get("init_from"), "code": code_version()}
         tqdm.write(f"drs-{self.phase}: {describe_precision(self.precision, self.device)}")
         for note in self.notes:
             tqdm.write(f"drs-{self.phase}: {note}")

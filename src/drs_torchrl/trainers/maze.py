@@ -66,6 +66,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import MLP, EGreedyModule, QValueActor
 from torchrl.objectives import DQNLoss, ValueEstimators
 
+from drs_torchrl.provenance import code_version
 from drs_torchrl.data import TrajectoryAssembler
 from drs_torchrl.envs.maze import ACTIONS, GATES, MOVES, OBS_DIMS, ThreeRoomMaze, convert_observation, observation
 from drs_torchrl.learners import DemoDiscriminatorLearner, DrSLearner, OfflineClassifierLearner, SuccessClassifierLearner
@@ -529,7 +530,7 @@ class _MazeLog:
         cfg, wall = self.cfg, time.perf_counter() - self.t0
         summary = {
             "phase": cfg.phase, "map": map_name, "reward": cfg.reward.name, "reward_scale": float(cfg.dqn.get("reward_scale", 1.0)),
-            "seed": int(cfg.seed),
+            "seed": int(cfg.seed), "code": code_version(),
             "reward_input": ("next_state" if reads_next_state(drs) else "state_action") if drs is not None else None,
             "reward_alpha": getattr(drs, "alpha", None),
             "reward_coords": reward_coords(drs) if (drs is not None and reward_coords(drs) != cfg.coords) else None,
