@@ -235,6 +235,30 @@ def test_demonstrations_in_the_sac_batch_only_leave_the_stage_buffers_to_the_age
         Trainer(cfg("demos.sac_share=0.25", "demos.stage_buffers=false", "reward=vice_raq"), "learn", tmp_path / "vice")
 
 
+def test_the_recipe_default_keeps_drs_demonstrations_in_the_sac_batch_only(tmp_path, demos):
+    """demos.stage_buffers=auto (the default recipe, docs/recipe.md): reward=drs with demonstrations that carry
+    the agent's actions -> the SAC batch only (resolved false and saved so); with sac_share=0, or for a
+    learned baseline, they go into the stage buffers / the learner as before (resolved true)."""
+    from hydra import compose, initialize_config_dir
+
+    from drs_torchrl.trainers.apps import conf_dir
+    from drs_torchrl.trainers.loop import Trainer
+
+    def cfg(*extra):
+        with initialize_config_dir(config_dir=conf_dir(), version_base=None):
+            return compose("learn", overrides=[*TINY, f"demos.path={demos}", *extra])
+
+    assert cfg().demos.stage_buffers == "auto" and cfg().stop_at_success == 0.8
+    for extra, sac_only in (((), True), (("demos.sac_share=0",), False), (("reward=vice_raq",), False)):
+        tr = Trainer(cfg(*extra), "learn", tmp_path / f"run{len(extra)}{extra[:1]}")
+        try:
+            assert tr.cfg.demos.stage_buffers is (not sac_only), extra
+            if tr.cfg.reward.name == "drs":
+                assert (int(tr.learner.stage_buffers.stage_counts()[-1]) == 0) is sac_only, extra
+        finally:
+            tr.close()
+
+
 def test_sac_share_auto_shares_where_the_demonstrations_allow_and_says_why_not(tmp_path, demos, capsys):
     """demos.sac_share=auto (the default): AUTO_SAC_SHARE of each SAC batch where the demonstrations carry
     the agent's actions, 0 (with the reason on the console) where they do not; the choice is saved resolved."""

@@ -50,6 +50,8 @@ def test_learn_writes_reward_policy_logs_and_config(learned):
     assert timed and all(0 < float(r["frac_time_waiting_for_data"]) <= 1 and float(r["collect_steps_per_s"]) > 0 for r in timed)
     summary = json.loads((learned / "summary.json").read_text())
     assert summary["frames"] >= 640 and summary["updates"] > 0
+    head = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=Path(__file__).parent).stdout.strip()
+    assert summary["code"]["commit"] == (head or None)  # the code behind the run (None outside a git checkout)
     eps = summary["stage_buffer_episodes"]
     assert sum(eps) >= 10
     # a discriminator trains iff it has trajectories on both sides of its stage

@@ -1,8 +1,10 @@
 """Stage monotonicity and indexing (Eq. 2-3) and the StageIndicator transform."""
+import pytest
 import torch
 from tensordict import TensorDict
+from torchrl.data import Composite, Unbounded
 
-from drs_torchrl.transforms import StageIndicator, monotone_indicators, stage_index
+from drs_torchrl.transforms import SemiSparseReward, StageIndicator, monotone_indicators, stage_index
 
 KEYS = ["is_grasped", "is_obj_placed", "success"]
 
@@ -39,13 +41,34 @@ def test_transform_labels_bare_tensordict_and_next_of_transitions():
 
 
 def test_semi_sparse_reward_is_stage_plus_offset():
-    td = StageIndicator(KEYS, semi_sparse_reward=True, semi_sparse_offset=-3)(_td([[0, 0, 0], [1, 0, 0], [1, 1, 1]]))
+    td = SemiSparseReward(3, offset=-3)(StageIndicator(KEYS)(_td([[0, 0, 0], [1, 0, 0], [1, 1, 1]])))
     assert td["reward"].squeeze(-1).tolist() == [-3.0, -2.0, 0.0]
-    td = StageIndicator(KEYS, semi_sparse_reward=True)(_td([[0, 1, 0]]))
+    td = SemiSparseReward(3)(StageIndicator(KEYS)(_td([[0, 1, 0]])))
     assert td["reward"].item() == 2.0
 
 
 def test_no_reward_is_written_on_reset():
-    t = StageIndicator(KEYS, semi_sparse_reward=True)
-    out = t._reset(TensorDict(), _td([[1, 0, 0]]))
+    labelled = StageIndicator(KEYS)._reset(TensorDict(), _td([[1, 0, 0]]))
+    out = SemiSparseReward(3)._reset(TensorDict(), labelled)
     assert "reward" not in out.keys() and out["stage"].item() == 1
+
+
+def test_stage_labelling_writes_no_reward():
+    assert "reward" not in StageIndicator(KEYS)(_td([[1, 1, 1]])).keys()
+
+
+def test_a_missing_indicator_or_stage_is_named():
+    with pytest.raises(KeyError, match="is_obj_placed"):
+        StageIndicator(KEYS)(TensorDict({"is_grasped": torch.ones(2, 1, dtype=torch.bool)}, [2]))
+    with pytest.raises(KeyError, match="stage"):
+        SemiSparseReward(3)(TensorDict({}, [2]))
+
+
+def test_semi_sparse_reward_spec_is_bounded_and_keeps_a_custom_key():
+    spec = Composite(reward=Unbounded(shape=(1,)), shape=())
+    out = SemiSparseReward(3, offset=-3).transform_reward_spec(spec.clone())
+    assert out["reward"].space.low.item() == -3 and out["reward"].space.high.item() == 0
+    custom = SemiSparseReward(3, reward_key="semi").transform_reward_spec(spec.clone())
+    assert "semi" in custom.keys() and custom["semi"].dtype == torch.float32
+    td = SemiSparseReward(3, reward_key="semi")(StageIndicator(KEYS)(_td([[1, 0, 0]])))
+    assert td["semi"].item() == 1.0 and "reward" not in td.keys()

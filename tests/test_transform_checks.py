@@ -14,7 +14,7 @@ from torchrl.envs.utils import check_env_specs
 
 from drs_torchrl.envs.factory import make_family_env
 from drs_torchrl.tasks import get_family
-from drs_torchrl.transforms import ClassifierReward, DrSReward, StageIndicator
+from drs_torchrl.transforms import ClassifierReward, DrSReward, SemiSparseReward, StageIndicator
 
 pytestmark = pytest.mark.sim
 SHAPES = {"observation": 17, "stage_indicators": 1}
@@ -37,7 +37,12 @@ def _dense_shift():
     return RewardScaling(loc=-1.0, scale=1.0)
 
 
-MAKERS = {"drs": _drs, "vice_raq": _vice, "gail_stages": _gail_stages, "dense_shift": _dense_shift}
+def _semi_sparse():
+    return SemiSparseReward(1, offset=-1.0)
+
+
+MAKERS = {"drs": _drs, "vice_raq": _vice, "gail_stages": _gail_stages, "dense_shift": _dense_shift, "semi_sparse": _semi_sparse}
+LEARNED = ["drs", "vice_raq", "gail_stages"]
 
 
 def _env(transform=None):
@@ -86,7 +91,7 @@ def test_single_env_and_inside_and_outside_batched_envs(name):
         outside.close()
 
 
-@pytest.mark.parametrize("name", [n for n in MAKERS if n != "dense_shift"])
+@pytest.mark.parametrize("name", LEARNED)
 def test_composed_on_a_replay_buffer_without_env_and_in_a_model(name):
     reward = _seeded(MAKERS[name])
     e = _env()
@@ -115,3 +120,22 @@ def test_composed_on_a_replay_buffer_without_env_and_in_a_model(name):
     with pytest.raises(KeyError, match="observation"):
         reward.clone()(TensorDict({"next": data["next"].exclude("observation"), "action": data["action"],
                                    "observation": data["observation"], "stage": data["stage"]}, batch_size=data.shape))
+
+
+@pytest.mark.parametrize("name", LEARNED)
+def test_dtype_casts_keep_the_reward_and_its_declared_dtype(name):
+    """``.double()`` / ``.to(torch.bfloat16)`` / ``.float()`` of the transform (e.g. a whole model cast):
+    the inputs follow the weights' dtype and the reward stays float32, as the reward spec declares."""
+    reward = _seeded(MAKERS[name])
+    e = _env()
+    try:
+        data = e.rollout(6)
+    finally:
+        e.close()
+    reward.requires_grad_(False)
+    (reward.discriminators if isinstance(reward, DrSReward) else reward.classifier).trained.fill_(True)
+    expected = reward(data.clone())["next", "reward"]
+    for dtype, tol in ((torch.float64, 1e-5), (torch.float32, 0.0), (torch.bfloat16, 0.05)):  # bf16 last: lossy
+        got = reward.to(dtype)(data.clone())["next", "reward"]
+        assert got.dtype == torch.float32
+        assert torch.allclose(got, expected, atol=tol), dtype

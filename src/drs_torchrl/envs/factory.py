@@ -10,7 +10,7 @@ from torchrl.envs.transforms import RewardScaling, Transform
 
 from drs_torchrl.envs.maniskill import ManiSkillEnv
 from drs_torchrl.tasks import TaskFamily
-from drs_torchrl.transforms.stages import StageIndicator
+from drs_torchrl.transforms.stages import SemiSparseReward, StageIndicator
 
 
 def make_family_env(
@@ -73,12 +73,9 @@ def make_family_env(
     else:
         base = ManiSkillEnv(env_id, family.all_info_keys, num_envs=num_envs, sim_backend=sim_backend,
                             render_mode=render_mode, **kwargs)
-    env = TransformedEnv(base, StageIndicator(
-            family.stage_keys,
-            semi_sparse_reward=semi_sparse_reward,
-            semi_sparse_offset=-family.num_stages if semi_sparse_offset is None else semi_sparse_offset,
-        ),
-    )
+    env = TransformedEnv(base, StageIndicator(family.stage_keys))
+    if semi_sparse_reward:
+        env.append_transform(SemiSparseReward(family.num_stages, -family.num_stages if semi_sparse_offset is None else semi_sparse_offset))
     if reward_offset:
         env.append_transform(RewardScaling(loc=float(reward_offset), scale=1.0))
     for t in transforms:

@@ -82,7 +82,7 @@ from drs_torchrl.maze_analysis import (  # noqa: F401 (re-exported: the maze's a
     reward_label,
 )
 from drs_torchrl.run_logger import RunLogger
-from drs_torchrl.transforms import ClassifierReward, DrSReward, StageIndicator, load_reward
+from drs_torchrl.transforms import ClassifierReward, DrSReward, SemiSparseReward, StageIndicator, load_reward
 
 # the paper's learned baselines (Sec. 5.2, Appendix F.2) on the same core: classifier -> (output, offset),
 # as in conf/reward/*.yaml of the SAC families (every step costs: log D <= 0, D - 1 <= 0)
@@ -190,11 +190,13 @@ def make_env(map_name: str, num_envs: int, max_steps: int, seed: int, reward_nam
     env = TransformedEnv(
         ThreeRoomMaze(map_name, num_envs=num_envs, max_steps=max_steps, seed=seed, coords=coords,
                       dense_coef=dense_coef if reward_name == "dense" else 0.0),
-        StageIndicator(["success"], indicators_key=None, semi_sparse_reward=reward_name == "semi_sparse", semi_sparse_offset=-1.0),
+        StageIndicator(["success"], indicators_key=None),
     )
+    if reward_name == "semi_sparse":  # scaled here: TorchRL's RewardScaling refuses its bounded reward spec
+        env.append_transform(SemiSparseReward(1, offset=-1.0, scale=reward_scale))
     if drs is not None:
         env.append_transform(StateActionReward(drs, coords))
-    if reward_scale != 1.0:
+    if reward_scale != 1.0 and reward_name != "semi_sparse":
         env.append_transform(RewardScaling(loc=0.0, scale=float(reward_scale)))
     return env
 

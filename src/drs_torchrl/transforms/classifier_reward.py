@@ -126,7 +126,7 @@ class ClassifierReward(Transform):
     # ------------------------------------------------------------ reward math
     def state_features(self, state: TensorDictBase) -> torch.Tensor:
         """The state entries ``D`` reads, concatenated."""
-        return torch.cat([require(state, k).to(torch.float32) for k in self.reward_in_keys], dim=-1)
+        return torch.cat([require(state, k).to(self._dtype) for k in self.reward_in_keys], dim=-1)
 
     def features(self, state: TensorDictBase, action: torch.Tensor | None = None) -> torch.Tensor:
         """``D``'s input: the state features, and the action when it reads ``(s, a)``."""
@@ -135,7 +135,12 @@ class ClassifierReward(Transform):
             return x
         if action is None:
             raise KeyError(f"this reward reads (s, a): the transition lacks {self.action_key!r}")
-        return torch.cat([x, action.to(torch.float32)], dim=-1)
+        return torch.cat([x, action.to(self._dtype)], dim=-1)
+
+    @property
+    def _dtype(self) -> torch.dtype:
+        """The classifier's parameter dtype: inputs follow ``.double()`` / ``.to(dtype)`` of the transform."""
+        return next(self.classifier.parameters()).dtype
 
     def logits(self, state: TensorDictBase, action: torch.Tensor | None = None) -> torch.Tensor:
         return self.classifier(self.features(state, action))
@@ -156,7 +161,8 @@ class ClassifierReward(Transform):
         ``s'`` or ``(s, a)``; the stage term reads ``s'``."""
         with torch.no_grad():
             src = state if self.use_action else next_state
-            return self.combine(self.logits(src, action), require(next_state, self.stage_key))
+            r = self.combine(self.logits(src, action), require(next_state, self.stage_key))
+        return r.to(torch.float32)  # the declared reward spec's dtype
 
     def reward(self, td: TensorDictBase) -> torch.Tensor:
         """Reward of a ``(T,)`` episode (a TensorDict with ``"next"``) or, for a state-only

@@ -143,7 +143,8 @@ class DrSReward(Transform):
     # ------------------------------------------------------------ reward math
     def features(self, td: TensorDictBase) -> torch.Tensor:
         """Concatenate the reward inputs of states held at the root of ``td``."""
-        return torch.cat([require(td, k).to(torch.float32) for k in self.reward_in_keys], dim=-1)
+        dtype = next(self.discriminators.parameters()).dtype  # follows .double() / .to(dtype) of the transform
+        return torch.cat([require(td, k).to(dtype) for k in self.reward_in_keys], dim=-1)
 
     def combine(self, logits: torch.Tensor, stage: torch.Tensor) -> torch.Tensor:
         """Eq. 4 from all-stage logits ``(*b, N)`` and stage indices ``(*b, 1)``; returns ``(*b, 1)``."""
@@ -163,7 +164,8 @@ class DrSReward(Transform):
     def reward(self, td: TensorDictBase) -> torch.Tensor:
         """Reward of the states at the root of ``td`` (``(*batch, 1)``), without gradients."""
         with torch.no_grad():
-            return self.combine(self.discriminators(self.features(td)), require(td, self.stage_key))
+            r = self.combine(self.discriminators(self.features(td)), require(td, self.stage_key))
+        return r.to(torch.float32)  # the declared reward spec's dtype, whatever the discriminators' dtype
 
     def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
         next_tensordict.set(self.reward_key, self.reward(next_tensordict))

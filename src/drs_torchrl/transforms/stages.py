@@ -2,8 +2,8 @@
 
 :class:`StageIndicator` reads a task's ordered boolean stage indicators (the last one is success),
 makes them monotone (reaching a later stage implies the earlier ones, as the authors' code does),
-and writes the integer stage index ``k`` of the state, ``0 <= k <= N``. It can also emit the
-semi-sparse reward ``R(s') = k`` (Eq. 2).
+and writes the integer stage index ``k`` of the state, ``0 <= k <= N``.
+:class:`SemiSparseReward` turns that index into the semi-sparse reward ``R(s') = k`` (Eq. 2).
 """
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ def stage_index(indicators: torch.Tensor) -> torch.Tensor:
 
 
 class StageIndicator(Transform):
-    """Write the stage index (and, optionally, the semi-sparse reward) of each next state.
+    """Write the stage index of each next state (Eq. 3) and its monotone indicators.
 
     Args:
         stage_keys: ordered indicator keys, success last (e.g.
@@ -37,22 +37,12 @@ class StageIndicator(Transform):
         indicators_key: where the monotone indicators go as a float vector ``(*batch, N)`` (a
             reward input, as the public implementation appends them to the observation);
             ``None`` to skip.
-        semi_sparse_reward: if ``True``, overwrite ``"reward"`` with ``k + semi_sparse_offset`` (Eq. 2;
-            an offset of ``-N`` makes every reward <= 0, for tasks that terminate on success).
 
     Works in a :class:`~torchrl.envs.TransformedEnv`, on replay-buffer samples (``forward`` labels
-    the ``"next"`` entries) and on bare TensorDicts.
+    the ``"next"`` entries) and on bare TensorDicts. A missing indicator raises a ``KeyError`` naming it.
     """
 
-    def __init__(
-        self,
-        stage_keys: Sequence[str],
-        stage_key: str = "stage",
-        indicators_key: str | None = "stage_indicators",
-        semi_sparse_reward: bool = False,
-        reward_key: str = "reward",
-        semi_sparse_offset: float = 0.0,
-    ):
+    def __init__(self, stage_keys: Sequence[str], stage_key: str = "stage", indicators_key: str | None = "stage_indicators"):
         stage_keys = list(stage_keys)
         if not stage_keys:
             raise ValueError("StageIndicator needs at least one indicator key (success)")
@@ -61,31 +51,25 @@ class StageIndicator(Transform):
         self.stage_keys = stage_keys
         self.stage_key = stage_key
         self.indicators_key = indicators_key
-        self.semi_sparse_reward = semi_sparse_reward
-        self.reward_key = reward_key
-        self.semi_sparse_offset = float(semi_sparse_offset)
 
     @property
     def num_stages(self) -> int:
         return len(self.stage_keys)
 
-    def label(self, td: TensorDictBase, write_reward: bool = True) -> TensorDictBase:
+    def label(self, td: TensorDictBase) -> TensorDictBase:
         """Label a TensorDict whose indicator entries are at its root."""
-        ind = torch.cat([td.get(k).to(torch.bool) for k in self.stage_keys], dim=-1)
+        ind = torch.cat([_require(td, k, "stage indicator").to(torch.bool) for k in self.stage_keys], dim=-1)
         mono = monotone_indicators(ind)
-        stage = mono.sum(-1, keepdim=True)
-        td.set(self.stage_key, stage)
+        td.set(self.stage_key, mono.sum(-1, keepdim=True))
         if self.indicators_key:
             td.set(self.indicators_key, mono.to(torch.float32))
-        if self.semi_sparse_reward and write_reward:
-            td.set(self.reward_key, stage.to(torch.float32) + self.semi_sparse_offset)
         return td
 
     def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
         return self.label(next_tensordict)
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        return self.label(tensordict_reset, write_reward=False)
+        return self.label(tensordict_reset)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         if "next" in tensordict.keys():
@@ -94,6 +78,9 @@ class StageIndicator(Transform):
         return self.label(tensordict)
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        if self.stage_keys[0] not in observation_spec.keys(True, True):
+            raise KeyError(f"stage indicator {self.stage_keys[0]!r} is not in the observation spec "
+                           f"(it has {sorted(map(str, observation_spec.keys(True, True)))})")
         ref = observation_spec[self.stage_keys[0]]
         shape = ref.shape[:-1]
         observation_spec[self.stage_key] = Bounded(
@@ -106,4 +93,53 @@ class StageIndicator(Transform):
         return observation_spec
 
     def __repr__(self) -> str:
-        return f"{type(self).__name__}(stage_keys={self.stage_keys}, semi_sparse_reward={self.semi_sparse_reward})"
+        return f"{type(self).__name__}(stage_keys={self.stage_keys})"
+
+
+class SemiSparseReward(Transform):
+    """The semi-sparse reward of Eq. 2, ``R(s') = scale * (k + offset)``, from the stage index a
+    :class:`StageIndicator` wrote (``offset=-N`` keeps every reward <= 0, for tasks that end on success).
+
+    Declares ``reward_key`` as float32 within its bounds; nothing is written on reset. ``scale`` is here
+    because TorchRL's ``RewardScaling`` refuses a bounded reward spec.
+    """
+
+    def __init__(self, num_stages: int, offset: float = 0.0, stage_key: str = "stage", reward_key: str = "reward",
+                 scale: float = 1.0):
+        if num_stages < 1:
+            raise ValueError(f"num_stages must be >= 1, got {num_stages}")
+        if not scale > 0:
+            raise ValueError(f"scale must be > 0, got {scale}")
+        super().__init__(in_keys=[stage_key], out_keys=[reward_key])
+        self.num_stages, self.offset, self.scale = int(num_stages), float(offset), float(scale)
+        self.stage_key, self.reward_key = stage_key, reward_key
+
+    def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
+        stage = _require(next_tensordict, self.stage_key, "stage index (add a StageIndicator before it)")
+        next_tensordict.set(self.reward_key, self.scale * (stage.to(torch.float32) + self.offset))
+        return next_tensordict
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        if "next" in tensordict.keys():
+            self._call(tensordict.get("next"))
+            return tensordict
+        return self._call(tensordict)
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        return tensordict_reset
+
+    def transform_reward_spec(self, reward_spec: Composite) -> Composite:
+        shape = reward_spec[self.reward_key].shape if self.reward_key in reward_spec.keys() else (*reward_spec.shape, 1)
+        reward_spec[self.reward_key] = Bounded(self.scale * self.offset, self.scale * (self.num_stages + self.offset), shape=shape,
+                                               dtype=torch.float32, device=reward_spec.device)
+        return reward_spec
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(num_stages={self.num_stages}, offset={self.offset:g}, scale={self.scale:g})"
+
+
+def _require(td: TensorDictBase, key, what: str) -> torch.Tensor:
+    value = td.get(key, None)
+    if value is None:
+        raise KeyError(f"{what} {key!r} is missing from the TensorDict (it holds {sorted(map(str, td.keys()))})")
+    return value
