@@ -82,8 +82,8 @@ if ! $py -c "import torch,sys; sys.exit(0 if torch.__version__.startswith('$TORC
   log "installing torch==$TORCH_VERSION first (a CPU wheel where one is on disk)"
   $py -m pip install -q "torch==$TORCH_VERSION"
 fi
-log "installing drs-torchrl with its test and locomotion (MuJoCo) extras"
-$py -m pip install -q -e ".[test,locomotion]"
+log "installing drs-torchrl with its test, locomotion (MuJoCo) and docs (mkdocs) extras"
+$py -m pip install -q -e ".[test,locomotion,docs]"
 log "checking the simulator"
 .venv/bin/drs-doctor
 log "done. Activate with: source .venv/bin/activate"

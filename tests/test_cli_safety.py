@@ -18,7 +18,7 @@ TINY = [
     "checkpoint_interval=512", "logger.tensorboard=false",
 ]
 LIBRARY_CHATTER = ("Requested to use render device", "No initial pose set", "Initialized LazyTensorStorage",
-                   "init_random_frames")
+                   "init_random_frames", "screw plan failed")
 
 
 def run(*args, cwd, **kw):
@@ -129,3 +129,95 @@ def test_drs_demos_console_shows_no_library_chatter_unless_asked(tmp_path):
                        timeout=600, env=env)
     assert p.returncode == 0, p.stderr[-3000:]
     assert "Requested to use render device" in p.stdout + p.stderr
+
+
+# ---------------------------------------------------------------------------------------------- issue 48
+def test_a_full_disk_while_saving_is_one_line_and_the_last_state_resumes(tmp_path):
+    """drs-learn on a 3 MB filesystem (tmpfs in a private mount namespace): the state at 2048 env steps fits,
+    the checkpoint at 3072 does not. Without the space check the memory-mapped buffers died of SIGBUS (135)."""
+    small, out = tmp_path / "small", tmp_path / "out"
+    small.mkdir()
+    out.mkdir()
+    args = ["total_frames=4096", "algo.learning_starts=4096", "algo.batch_size=32", "algo.hidden=[32,32]",
+            "eval.episodes=0", "checkpoint_interval=1024", "logger.interval=512", "stop_at_success=null",
+            "logger.progress_bar=false", "logger.tensorboard=false", f"hydra.run.dir={small / 'run'}"]
+    ns = ["unshare", "--mount"] if os.geteuid() == 0 else ["unshare", "--user", "--map-root-user", "--mount"]
+    script = (f"mount -t tmpfs -o size=3m tmpfs {small} || exit 99; {BIN / 'drs-learn'} {' '.join(args)}; "
+              f"rc=$?; cp -a {small / 'run'} {out}/; exit $rc")
+    p = subprocess.run([*ns, "sh", "-c", script], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    if p.returncode == 99 or "unshare:" in p.stderr:
+        pytest.skip(f"cannot mount a small filesystem here: {p.stderr.strip()[:200]}")
+    assert p.returncode == 2, p.stderr[-3000:]
+    errors = [ln for ln in p.stderr.splitlines() if "error" in ln.lower()]
+    assert len(errors) == 1 and "Traceback" not in p.stderr, p.stderr[-3000:]
+    assert f"{small / 'run' / 'checkpoints'}: it needs about" in errors[0] and "MiB are free; free some space" in errors[0]
+    assert f"the training state at 2048 env steps is kept: continue with drs-learn resume={small / 'run'}" in errors[0]
+    run_dir = out / "run"
+    assert (run_dir / "checkpoints" / "state" / "COMPLETE").read_text() == "2048"
+    assert not list((run_dir / "checkpoints").glob("state.tmp-*")) and not (run_dir / "checkpoints" / "state.old").exists()
+    assert not (run_dir / "summary.json").exists()  # the run did not finish, and says nothing else
+    p = subprocess.run([str(BIN / "drs-learn"), f"resume={run_dir}", "total_frames=2304"], cwd=tmp_path, capture_output=True,
+                       text=True, timeout=600)  # the state resumes (here, with room)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert "2304 env steps" in p.stdout
+
+
+def test_resume_of_a_damaged_config_names_the_file_and_its_copy(cli, tmp_path):
+    d = tmp_path / "r"
+    (d / ".hydra").mkdir(parents=True)
+    (d / ".hydra" / "config.yaml").write_text("seed: 0\n")
+    (d / "config.yaml").write_text("phase: learn\nenv: [unclosed\n")
+    before = sorted(p.name for p in d.iterdir())
+    code, err = cli("learn", f"resume={d}")
+    assert code == 2
+    assert f"cannot resume: {d / 'config.yaml'} is damaged (not valid YAML at line 3)" in err
+    assert str(d / ".hydra" / "config.yaml") in err and "Traceback" not in err
+    assert sorted(p.name for p in d.iterdir()) == before  # as it was (the lock file went with the lock)
+    (d / "config.yaml").write_text("- a list\n")
+    code, err = cli("learn", f"resume={d}")
+    assert code == 2 and "is damaged: it lacks phase" in err
+
+
+def test_an_env_id_gymnasium_does_not_know_is_one_line(cli, tmp_path):
+    code, err = cli("learn", "env=custom", "env.family=mine", "env.env_id=PushCub-v1", f"hydra.run.dir={tmp_path / 'r'}")
+    assert code == 2 and "Traceback" not in err
+    assert "drs-learn: error: env.env_id=PushCub-v1: gymnasium: Environment `PushCub` doesn't exist" in err
+    assert "PushCube" in err
+    assert not (tmp_path / "r" / "config.yaml").exists()
+
+
+def test_drs_eval_refuses_a_video_path_that_is_a_file_before_any_episode(tmp_path, capsys):
+    from drs_torchrl.evaluate import main
+
+    (tmp_path / "v").write_text("a file")
+    with pytest.raises(SystemExit) as e:
+        main([str(tmp_path), "--video", str(tmp_path / "v")])
+    assert e.value.code == 2
+    assert capsys.readouterr().err == f"drs-eval: error: --video {tmp_path / 'v'} is a file, not a folder; give a folder (it is made if missing)\n"
+
+
+def test_drs_demos_never_replaces_a_folder_that_is_not_demonstrations(tmp_path, capsys):
+    from drs_torchrl.demos import main
+
+    (tmp_path / "mine.txt").write_text("keep me")
+    assert main(["--num", "1", "--out", str(tmp_path)]) == 2
+    assert "is a folder that does not hold demonstrations" in capsys.readouterr().err
+    assert (tmp_path / "mine.txt").read_text() == "keep me"
+
+
+def test_drs_bench_collector_workers_filter_library_messages(tmp_path):
+    """The background collector's worker process applies the console filter (ManiSkill's render-device and
+    initial-pose warnings came from there); DRS_LIBRARY_MESSAGES=1 shows them again."""
+    code = ("import sys; from drs_torchrl.console import quiet_libraries, library_messages_requested\n"
+            "library_messages_requested() or quiet_libraries()\n"
+            "from drs_torchrl.bench import bench_collect; from drs_torchrl.tasks import get_family\n"
+            "print(bench_collect(get_family('pick_cube'), 64, 'background') > 0)")
+    env = {k: v for k, v in os.environ.items() if k not in ("RL_WARNINGS", "DRS_LIBRARY_MESSAGES", "DRS_QUIET_LIBRARIES")}
+    quiet = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=tmp_path, timeout=600)
+    assert quiet.returncode == 0 and "True" in quiet.stdout, quiet.stderr[-3000:]
+    loud = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=600,
+                          env={**env, "DRS_LIBRARY_MESSAGES": "1"})
+    assert loud.returncode == 0, loud.stderr[-3000:]
+    assert "Requested to use render device" in loud.stdout + loud.stderr
+    for msg in LIBRARY_CHATTER:
+        assert msg not in quiet.stdout + quiet.stderr, msg

@@ -107,7 +107,7 @@ def test_eval_reads_a_committed_record(trained, tmp_path):
 
 
 def test_reward_probe_reports_every_stage_with_a_rank_correlation(trained, tmp_path):
-    p = subprocess.run([sys.executable, str(Path(__file__).parents[1] / "bin" / "probe_reward.py"),
+    p = subprocess.run([sys.executable, "-m", "drs_torchrl.probe",
                         "--reward", str(trained / "checkpoints" / "reward.pt"), "--policy", str(trained),
                         "--splits", "test", "--episodes", "2", "--out", str(tmp_path)],
                        capture_output=True, text=True, timeout=600, cwd=tmp_path)
@@ -123,7 +123,7 @@ def test_reward_probe_reports_every_stage_with_a_rank_correlation(trained, tmp_p
 def test_reward_probe_labels_stages_with_a_variant_override_that_reaches_the_env(trained, tmp_path):
     """--variant-override placed_thresh=... labels the stages as a reward learned at that threshold does."""
     def probe(*extra):
-        return subprocess.run([sys.executable, str(Path(__file__).parents[1] / "bin" / "probe_reward.py"),
+        return subprocess.run([sys.executable, "-m", "drs_torchrl.probe",
                                "--reward", str(trained / "checkpoints" / "reward.pt"), "--policy", str(trained),
                                "--splits", "test", "--episodes", "1", "--out", str(tmp_path), *extra],
                               capture_output=True, text=True, timeout=600, cwd=tmp_path)
@@ -139,8 +139,7 @@ def test_reward_probe_labels_stages_with_a_variant_override_that_reaches_the_env
 
 
 def test_spearman_of_the_probe_ranks_and_refuses_degenerate_inputs():
-    sys.path.insert(0, str(Path(__file__).parents[1] / "bin"))
-    from probe_reward import spearman
+    from drs_torchrl.probe import spearman
 
     import numpy as np
 
@@ -151,9 +150,8 @@ def test_spearman_of_the_probe_ranks_and_refuses_degenerate_inputs():
 
 def test_feature_swap_finds_the_inputs_a_score_reads():
     """A score that reads column 2 only: swapping that group moves each side to the other's level, the rest do nothing."""
-    sys.path.insert(0, str(Path(__file__).parents[1] / "bin"))
     import torch
-    from probe_reward import feature_swap
+    from drs_torchrl.probe import feature_swap
 
     fa, fb = torch.zeros(50, 4), torch.zeros(40, 4)
     fa[:, 2], fb[:, 2] = 1.0, -1.0
@@ -169,8 +167,7 @@ def test_feature_swap_finds_the_inputs_a_score_reads():
 
 
 def test_feature_groups_name_every_column_of_the_pick_reward_input():
-    sys.path.insert(0, str(Path(__file__).parents[1] / "bin"))
-    from probe_reward import feature_groups
+    from drs_torchrl.probe import feature_groups
 
     from drs_torchrl.tasks import get_family
     from drs_torchrl.transforms import DrSReward

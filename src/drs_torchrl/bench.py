@@ -32,6 +32,8 @@ from pathlib import Path
 
 import torch
 
+from drs_torchrl.console import console_script
+
 
 def bench_raw_sim(env_id: str, steps: int, env_kwargs: dict, control_mode: str) -> float:
     import gymnasium as gym
@@ -62,10 +64,12 @@ def bench_collect(family, steps: int, collector: str = "inproc") -> float:
     from torchrl.collectors import AsyncCollector, Collector, MultiAsyncCollector
     from torchrl.data import LazyTensorStorage, ReplayBuffer
 
+    from drs_torchrl.console import in_quiet_worker
     from drs_torchrl.data import StageBuffers, TrajectoryAssembler
     from drs_torchrl.envs.factory import make_family_env
 
-    make = functools.partial(make_family_env, family, "train", seed=0)
+    # a worker applies this process's console filter before it builds its simulator (ManiSkill's warnings)
+    make = functools.partial(in_quiet_worker, make_family_env, family, "train", seed=0)
     rb = ReplayBuffer(storage=LazyTensorStorage(steps + 64))
     sb = StageBuffers(family.num_stages, list(family.reward_in_keys), capacity=steps + 64)
     asm = TrajectoryAssembler()
@@ -73,7 +77,7 @@ def bench_collect(family, steps: int, collector: str = "inproc") -> float:
     if collector == "background":
         collector = AsyncCollector(make, None, frames_per_batch=64, total_frames=steps + warmup)
     elif collector == "background2":
-        makers = [functools.partial(make_family_env, family, "train", seed=s) for s in (0, 1)]
+        makers = [functools.partial(in_quiet_worker, make_family_env, family, "train", seed=s) for s in (0, 1)]
         collector = MultiAsyncCollector(makers, None, frames_per_batch=64, total_frames=steps + warmup)
     else:
         collector = Collector(make(), None, frames_per_batch=64, total_frames=steps + warmup,
@@ -379,6 +383,7 @@ def parse_algo(spec: str, default_precisions) -> tuple[str, list[str]]:
     return algo, chosen
 
 
+@console_script("drs-bench")  # DRS_LIBRARY_MESSAGES=1 shows the libraries' notices again
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="drs-bench", description=__doc__.split("\n")[0])
     p.add_argument("--family", default="pick_cube")
@@ -406,13 +411,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--checkpoint", type=int, default=0, metavar="N",
                    help="also measure the training-state checkpoint of a run holding N transitions (e.g. 1000000)")
     a = p.parse_args(argv)
-    from drs_torchrl.console import library_messages_requested, quiet_libraries
-
-    if not library_messages_requested():  # DRS_LIBRARY_MESSAGES=1 shows the libraries' notices again
-        quiet_libraries()
+    from drs_torchrl.rundir import check_writable
     from drs_torchrl.tasks import get_family
 
-    fam = get_family(a.family)
+    fam = get_family(a.family)  # both checked before the benchmark starts
+    check_writable(a.out, "--out", folder=True)
     learn_overrides = [f"env={a.family}"] + ([] if a.learning_starts is None else [f"algo.learning_starts={a.learning_starts}"])
     kw = fam.variant_kwargs("train")
     threads = torch.get_num_threads()

@@ -27,10 +27,14 @@ from pathlib import Path
 
 import numpy as np
 
+from drs_torchrl.console import console_script
+from drs_torchrl.rundir import read_run_csv
+from drs_torchrl.errors import UserError
+
 DEFAULT_GROUP_BY = ("reward.name",)
 
 
-class CompareError(ValueError):
+class CompareError(UserError, ValueError):
     """A run directory (or a grouping key) that cannot be compared; the message names it."""
 
 
@@ -77,10 +81,10 @@ def load_run(run: Path, group_by: tuple[str, ...] = DEFAULT_GROUP_BY, label: str
     cfg = OmegaConf.to_container(OmegaConf.load(cfg_path), resolve=False) or {}
     if label is None:
         label = " ".join(f"{_lookup(cfg, k, run)}" for k in group_by)
-    ev = pd.read_csv(run / "eval.csv") if (run / "eval.csv").exists() else None
+    ev = read_run_csv(run / "eval.csv") if (run / "eval.csv").exists() else None
     if ev is not None and ev.empty:
         ev = None
-    return RunRecord(path=run, label=label, seed=cfg.get("seed"), eval=ev, train=pd.read_csv(run / "train.csv"),
+    return RunRecord(path=run, label=label, seed=cfg.get("seed"), eval=ev, train=read_run_csv(run / "train.csv"),
                      stages=_run_stages(cfg))
 
 
@@ -317,6 +321,7 @@ def compare(run_dirs: list[Path], out_dir: Path, group_by: tuple[str, ...] = DEF
     return paths
 
 
+@console_script("drs-compare")
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="drs-compare",

@@ -34,6 +34,7 @@ SAC policy in the family's env and keeps the episodes that succeed (:func:`recor
 from __future__ import annotations
 
 import argparse
+import collections
 import importlib
 import json
 import shutil
@@ -45,7 +46,9 @@ from typing import Any
 import torch
 from tensordict import TensorDict
 
+from drs_torchrl.console import UserError, console_script, library_prints
 from drs_torchrl.data.persistence import load_memmap_checked
+from drs_torchrl.rundir import check_writable, ensure_free, load_run_config, nbytes, space_errors
 from drs_torchrl.tasks import TaskFamily, get_family, with_stages, with_task_observation
 from drs_torchrl.transforms.stages import StageIndicator, monotone_indicators
 
@@ -53,7 +56,7 @@ DEMO_FORMAT = "drs-torchrl/demos"
 DEMO_VERSION = 1
 
 
-class DemoError(ValueError):
+class DemoError(UserError, ValueError):
     """A demonstrations file that cannot be used for this task."""
 
 
@@ -114,12 +117,14 @@ def record_demos(family: TaskFamily, variant: str, num: int, *, seed: int = 0, v
     tries, s = 0, seed
     max_tries = max_tries or 3 * num + 10
     t0 = time.time()
+    planner_said: collections.Counter = collections.Counter()  # its prints ("screw plan failed"), shown as a count
     while len(episodes) < num:
         if tries >= max_tries:
             raise RuntimeError(f"the solver succeeded in only {len(episodes)} of {tries} tries on {family.name}/{variant}")
         tries += 1
         try:
-            solve(recorder, seed=s)
+            with library_prints(planner_said):
+                solve(recorder, seed=s)
             # the planner stops as soon as it reaches the goal pose; families whose success also needs the
             # robot and object at rest (Appendix A) hold the last joint targets a few steps more
             recorder.settle(int(family.extra.get("demo_settle_steps", 0)))
@@ -153,6 +158,10 @@ def record_demos(family: TaskFamily, variant: str, num: int, *, seed: int = 0, v
             print(f"\r  {len(episodes)}/{num} demos ({time.time() - t0:.0f}s)", end="", file=sys.stderr, flush=True)
     if progress:
         print(file=sys.stderr)
+    if planner_said:
+        said = ", ".join(f"{text!r} x{n}" for text, n in planner_said.most_common(3))
+        print(f"  the motion planner reported {sum(planner_said.values())} failed plans ({said}); "
+              "DRS_LIBRARY_MESSAGES=1 shows them as they happen", file=sys.stderr)
     env.close()
     if target is not None:
         target.env.close()
@@ -190,7 +199,7 @@ def record_policy_demos(policy_path: str | Path, variant: str | None = None, num
     cfg_file = file.parent.parent / "config.yaml"
     env_cfg = {}
     if file.parent.name == "checkpoints" and cfg_file.is_file():
-        env_cfg = OmegaConf.to_container(OmegaConf.load(cfg_file)).get("env") or {}
+        env_cfg = OmegaConf.to_container(load_run_config(cfg_file.parent, needs=("env",))).get("env") or {}
         if env_cfg.get("family", family.name) != family.name:
             env_cfg = {}
     family = with_stages(family, env_cfg.get("stages"))  # a stage-ablation run observes only its stages
@@ -315,13 +324,28 @@ def _with_previous_states(states: TensorDict, reset_obs: torch.Tensor, keys) -> 
     return states
 
 
+def check_demos_out(path: str | Path) -> Path:
+    """``path`` if demonstrations can be written there: new, or demonstrations to replace (never another folder)."""
+    path = check_writable(path, "--out", folder=True)
+    if path.exists() and any(path.iterdir()) and not (path / "meta.json").is_file():
+        raise DemoError(f"--out {path} is a folder that does not hold demonstrations; give a new path such as "
+                        f"{path / 'my.demos'}")
+    return path
+
+
 def save_demos(states: TensorDict, meta: dict, path: str | Path) -> Path:
-    path = Path(path)
+    path = check_demos_out(path)
     tmp = path.with_name(path.name + ".tmp")
     shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    states.memmap(tmp / "states", num_threads=0)
-    (tmp / "meta.json").write_text(json.dumps(meta, indent=2))
+    ensure_free(tmp, nbytes(states), "the demonstrations")  # a memory map on a full disk faults (SIGBUS)
+    try:
+        with space_errors(tmp, "the demonstrations"):
+            tmp.mkdir(parents=True)
+            states.memmap(tmp / "states", num_threads=0)
+            (tmp / "meta.json").write_text(json.dumps(meta, indent=2))
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
     if path.exists():
         shutil.rmtree(path)
     tmp.rename(path)
@@ -333,8 +357,12 @@ def load_demos(path: str | Path) -> tuple[list[TensorDict], dict]:
     path = Path(path)
     if not (path / "meta.json").is_file():
         raise DemoError(f"{path} is not a drs-torchrl demonstrations directory (no meta.json); make one with drs-demos")
-    meta = json.loads((path / "meta.json").read_text())
-    if meta.get("format") != DEMO_FORMAT:
+    try:
+        meta = json.loads((path / "meta.json").read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise DemoError(f"{path / 'meta.json'} is damaged ({exc.__class__.__name__}: {exc}); record the "
+                        "demonstrations again with drs-demos") from None
+    if not isinstance(meta, dict) or meta.get("format") != DEMO_FORMAT:
         raise DemoError(f"{path}: unknown format {meta.get('format')!r}")
     if int(meta.get("version", 99)) > DEMO_VERSION:
         raise DemoError(f"{path} has demo format version {meta['version']}, newer than this drs-torchrl reads ({DEMO_VERSION})")
@@ -342,6 +370,9 @@ def load_demos(path: str | Path) -> tuple[list[TensorDict], dict]:
         states = load_memmap_checked(path / "states").clone()
     except Exception as exc:
         raise DemoError(f"{path}: the states cannot be read (corrupt or truncated?): {exc}") from exc
+    missing = [k for k in ("family", "stage_keys", "shapes") if k not in meta]
+    if missing:
+        raise DemoError(f"{path / 'meta.json'} is damaged: it lacks {missing}; record the demonstrations again with drs-demos")
     ep = states["episode"]
     bounds = torch.cat([torch.tensor([0]), (ep[1:] != ep[:-1]).nonzero().reshape(-1) + 1, torch.tensor([ep.numel()])])
     episodes = [states[int(a):int(b)] for a, b in zip(bounds[:-1], bounds[1:])]
@@ -671,6 +702,7 @@ def load_maniskill_h5(path: str | Path, family: TaskFamily, variant: str = "trai
     return data, meta
 
 
+@console_script("drs-demos")
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="drs-demos", description="generate demonstrations with ManiSkill's motion planners, "
                                 "record a trained policy's successful episodes (--from-policy), "
@@ -713,11 +745,9 @@ def main(argv: list[str] | None = None) -> int:
         overrides[key] = yaml.safe_load(value)
     if overrides and a.from_h5 is not None:
         p.error("--override applies to recording (the planner or --from-policy), not to --from-h5")
-    from drs_torchrl.console import library_messages_requested, quiet_libraries
-
-    if not library_messages_requested():  # ManiSkill's render-device and initial-pose warnings are not the user's business
-        quiet_libraries()
     try:
+        if a.out is not None:
+            check_demos_out(a.out)  # now, not after minutes of recording
         if a.from_policy is not None:  # a bad checkpoint raises PolicyCheckpointError, a ValueError
             states, meta = record_policy_demos(a.from_policy, a.variant, a.num or 100, seed=a.seed,
                                                variant_overrides=overrides, deterministic=not a.stochastic,
@@ -731,7 +761,7 @@ def main(argv: list[str] | None = None) -> int:
                 states, meta = record_demos(fam, a.variant or "train", a.num or 100, seed=a.seed,
                                             variant_overrides=overrides or None, control_mode=a.control_mode or fam.control_mode or "pd_joint_pos")
         out = a.out or Path("demos") / f"{fam.name}-{meta['variant']}{'-policy' if a.from_policy else ''}.demos"
-    except (KeyError, DemoError, RuntimeError, ValueError, TypeError) as exc:
+    except (KeyError, UserError, RuntimeError, ValueError, TypeError) as exc:
         print(f"drs-demos: error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
         return 2
     save_demos(states, meta, out)

@@ -21,8 +21,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from drs_torchrl.console import UserError, console_script
+from drs_torchrl.rundir import check_writable, load_run_config
 
-class EvalError(ValueError):
+
+class EvalError(UserError, ValueError):
     """A run directory or option that cannot be evaluated."""
 
 
@@ -74,10 +77,18 @@ def evaluate_run(run_dir: str | Path, *, episodes: int = 10, split: str | None =
         raise EvalError(f"--episodes must be >= 1, got {episodes}")
     if episode_seed is not None and episode_seed < 0:
         raise EvalError(f"--episode-seed must be >= 0, got {episode_seed}")
-    cfg = OmegaConf.load(run_dir / "config.yaml")
+    cfg = load_run_config(run_dir)
     family = family_from_config(cfg.env)
     split = split or cfg.env.split
     family.split_variants(split)  # unknown names raise the KeyError listing the variants
+    from drs_torchrl.study import RecordError, pinned_reward
+
+    try:  # a committed record names the reward it reused in reward.json (drs-study --report), pinned by hash
+        pinned = pinned_reward(run_dir)
+    except RecordError as exc:
+        raise EvalError(str(exc)) from None
+    if pinned is not None:
+        cfg.reward.checkpoint = str(pinned)
     setup = reward_setup(cfg.reward, cfg.phase)
     variant_overrides = {**(OmegaConf.to_container(cfg.env.variant_overrides) or {}), **(overrides or {})}
     env = make_family_env(
@@ -93,7 +104,7 @@ def evaluate_run(run_dir: str | Path, *, episodes: int = 10, split: str | None =
         raise EvalError(str(exc)) from exc
     reward = _run_reward(run_dir, cfg) or setup.frozen
     if video_dir:
-        video_dir = Path(video_dir)
+        video_dir = check_writable(video_dir, "--video", folder=True)
         video_dir.mkdir(parents=True, exist_ok=True)
     rows, kept = [], []
     mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
@@ -151,6 +162,7 @@ def evaluate_run(run_dir: str | Path, *, episodes: int = 10, split: str | None =
     return summary
 
 
+@console_script("drs-eval")
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="drs-eval", description=__doc__.split("\n")[0])
     p.add_argument("run_dir", help="a drs-learn / drs-reuse run directory (or its checkpoints/policy.pt)")
@@ -164,12 +176,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--video", metavar="DIR", help="record each episode to DIR/*.mp4")
     p.add_argument("--out", help="where to write the JSON report (default RUN_DIR/eval_<split>.json)")
     a = p.parse_args(argv)
-    from drs_torchrl.console import quiet_libraries
-
-    quiet_libraries()
     import yaml
 
-    try:
+    try:  # the places it writes, before minutes of episodes
+        if a.video:
+            check_writable(a.video, "--video", folder=True)
+        if a.out:
+            check_writable(a.out, "--out")
         overrides = {}
         for o in a.override:
             k, sep, v = o.partition("=")

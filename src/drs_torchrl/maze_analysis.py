@@ -17,11 +17,12 @@ import numpy as np
 import torch
 from omegaconf import ListConfig, OmegaConf
 
+from drs_torchrl.errors import UserError
 from drs_torchrl.envs.maze import ACTIONS, GATES, MOVES, OBS_DIMS, SIZE, ThreeRoomMaze, free_cells, make_grid, observation
 from drs_torchrl.transforms import DrSReward
 
 
-class MazeConfigError(ValueError):
+class MazeConfigError(UserError, ValueError):
     """A ``drs-maze`` setting that cannot work, with the fix in its message."""
 
 

@@ -9,6 +9,7 @@ from tensordict.nn import NormalParamExtractor, TensorDictModule, TensorDictSequ
 from torch import nn
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 
+from drs_torchrl.errors import UserError
 from drs_torchrl.precision import OutputFloat32
 
 POLICY_FORMAT = "drs-torchrl/policy"  # checkpoints/policy.pt of drs-learn / drs-reuse runs
@@ -16,7 +17,7 @@ POLICY_FORMAT = "drs-torchrl/policy"  # checkpoints/policy.pt of drs-learn / drs
 POLICY_INTERMEDIATE_KEYS = ("actor_params", "loc", "scale")
 
 
-class PolicyCheckpointError(ValueError):
+class PolicyCheckpointError(UserError, ValueError):
     """A policy checkpoint that cannot be loaded for this env."""
 
 

@@ -17,11 +17,13 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from drs_torchrl.errors import UserError
+
 PRECISIONS = ("auto", "fp32", "bf16", "fp16")
 _DTYPES = {"bf16": torch.bfloat16, "fp16": torch.float16}
 
 
-class PrecisionError(ValueError):
+class PrecisionError(UserError, ValueError):
     """A precision this device cannot run."""
 
 

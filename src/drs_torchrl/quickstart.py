@@ -33,13 +33,15 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
+from drs_torchrl.console import UserError, console_script
+from drs_torchrl.rundir import LOCK_NAME, lock_run_dir
 from drs_torchrl.trainers.maze import _conf_dir
 
 SUCCESS_BAR = 0.9  # "solved": greedy success at or above this
 LABELS = {"drs": "DrS (frozen, reused)", "sparse": "sparse", "semi_sparse": "semi-sparse", "dense": "human-engineered dense"}
 
 
-class QuickstartError(ValueError):
+class QuickstartError(UserError, ValueError):
     """A quickstart that cannot start, with the fix in its message."""
 
 
@@ -82,7 +84,7 @@ def prepare_out(out: Path, jobs: list[Job], overwrite: bool) -> list[str]:
     """Check ``out`` against an earlier quickstart there; returns the names of finished runs kept."""
     record = out / "quickstart.json"
     mine = {"plan": [asdict(j) for j in jobs]}
-    if out.exists() and any(p.name not in ("logs",) for p in out.iterdir()):
+    if out.exists() and any(p.name not in ("logs", LOCK_NAME) for p in out.iterdir()):
         if not record.is_file():
             raise QuickstartError(f"{out} already holds files that are not a quickstart's; choose another out=DIR")
         if overwrite:
@@ -92,8 +94,12 @@ def prepare_out(out: Path, jobs: list[Job], overwrite: bool) -> list[str]:
                 (out / f).unlink(missing_ok=True)
             shutil.rmtree(out / "logs", ignore_errors=True)
         else:
-            theirs = json.loads(record.read_text())
-            if theirs.get("plan") != mine["plan"]:
+            try:
+                theirs = json.loads(record.read_text())
+            except (OSError, UnicodeDecodeError, ValueError) as exc:
+                raise QuickstartError(f"{record} is damaged ({exc.__class__.__name__}); start {out} afresh with "
+                                      "overwrite=true, or choose another out=DIR") from None
+            if not isinstance(theirs, dict) or theirs.get("plan") != mine["plan"]:
                 raise QuickstartError(f"{out} holds a quickstart with other settings; continue it with the same "
                                       f"overrides, choose another out=DIR, or start it afresh with overwrite=true")
     out.mkdir(parents=True, exist_ok=True)
@@ -340,17 +346,16 @@ def plot(jobs: list[Job], out: Path) -> Path:
     return path
 
 
+@console_script("drs-quickstart", quiet=False)  # its runs filter (or not: library_messages) themselves
 @hydra.main(config_path=_conf_dir(), config_name="quickstart", version_base=None)
 def main(cfg: DictConfig) -> None:
     """``drs-quickstart [seed=N] [baselines=[...]] [out=DIR] [overwrite=true]`` (see conf/quickstart.yaml)."""
-    from drs_torchrl.console import survive_closed_output
-
-    survive_closed_output()
     out = Path(HydraConfig.get().runtime.output_dir)
     if out.is_relative_to(Path.cwd()):  # shown and recorded as the user wrote it (runs/quickstart/seed0)
         out = out.relative_to(Path.cwd())
     try:
         jobs = plan(cfg, out)
+        lock_run_dir(out, "choose another out=DIR")  # one quickstart per folder (each run locks its own too)
         kept = prepare_out(out, jobs, bool(cfg.overwrite))
     except QuickstartError as exc:
         print(f"drs-quickstart: error: {exc}", file=sys.stderr)

@@ -14,12 +14,13 @@ from pathlib import Path
 
 import numpy as np
 
+from drs_torchrl.console import console_script
+from drs_torchrl.rundir import read_run_csv
+
 
 def load(run_dir: Path):
-    import pandas as pd
-
-    train = pd.read_csv(run_dir / "train.csv") if (run_dir / "train.csv").exists() else None
-    ev = pd.read_csv(run_dir / "eval.csv") if (run_dir / "eval.csv").exists() else None
+    train = read_run_csv(run_dir / "train.csv") if (run_dir / "train.csv").exists() else None
+    ev = read_run_csv(run_dir / "eval.csv") if (run_dir / "eval.csv").exists() else None
     if train is None:
         raise FileNotFoundError(f"{run_dir} has no train.csv: is it a drs-learn/drs-reuse run directory?")
     return train, ev
@@ -124,6 +125,7 @@ def plot_reward_episode(run_dir: Path, out: Path, *, split: str | None = None, t
     return out
 
 
+@console_script("drs-plot")
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="drs-plot", description="plot drs-torchrl runs")
     p.add_argument("runs", nargs="+", type=Path)

@@ -20,6 +20,8 @@ from pathlib import Path
 import torch
 from torchrl.record.loggers import Logger, TensorboardLogger
 
+from drs_torchrl.errors import UserError
+
 __all__ = ["WideCSVLogger", "ResumableTensorboardLogger", "RunLogger", "LoggerConfigError"]
 
 
@@ -30,7 +32,7 @@ def _scalar(value) -> int | float:
     return float(value)
 
 
-class LoggerConfigError(ValueError):
+class LoggerConfigError(UserError, ValueError):
     """A logger setting that cannot work, with the fix in its message."""
 
 

@@ -40,12 +40,24 @@ saves its training state) and the study exits 130/143; re-invoke it to continue.
 ``--report OUT`` reads the run directories (finished, interrupted or still running; a run without one
 keeps the record OUT already holds) and writes
 what a results folder commits, never training states: ``OUT/run_files/<run>/`` (``train.csv``,
-``eval.csv``, ``config.yaml``, ``summary.json``; a phase-1 run's ``reward.pt`` and ``policy.pt`` too), ``OUT/status.md``
+``eval.csv``, ``config.yaml``, ``summary.json``; a phase-1 run's ``reward.pt`` and ``policy.pt`` too; a reuse run's
+``reward.json``, below), ``OUT/status.md``
 (each run's state, env steps and last evaluation, and the run-hours left), and ``drs-compare`` of the finished phase-2 runs into
 ``OUT/`` and of the finished phase-1 runs into ``OUT/learn/`` (a run still going would cut every curve's
 horizon), grouped by run name without its seed (``drs_s0``, ``drs_s1`` -> ``drs``). A study with many groups
 also names ``figures``: each compares the listed groups only, in that order (so their colours), with the given
 display labels and title, into ``OUT/figures/<name>/`` (``compare.png/.csv/.md``).
+
+A reuse run's ``config.yaml`` names the reward it reused where the run found it, often a run directory
+(``runs/...``) that exists on one machine only. Its record therefore also gets ``reward.json``::
+
+    {"checkpoint": "results/reuse/pick_cube/run_files/learn-placed_5cm_s0/reward.pt",   # committed, repo-relative
+     "sha256": "…",                                                                     # of that file
+     "ran_with": "runs/reuse_pick_cube/learn-placed_5cm_s0/checkpoints/reward.pt"}       # config.yaml's, unchanged
+
+the committed copy of that reward (the phase-1 run's ``OUT/run_files/NAME/reward.pt`` when it is a run of the study,
+else the file itself when it lies outside the run root) pinned by hash; ``drs-eval`` loads the reward from there and
+refuses a file whose hash differs. ``config.yaml`` stays as the run composed it.
 """
 from __future__ import annotations
 
@@ -64,8 +76,11 @@ from pathlib import Path
 
 import yaml
 
+from drs_torchrl.console import console_script
+from drs_torchrl.errors import UserError
 
-class StudyError(ValueError):
+
+class StudyError(UserError, ValueError):
     """A study file that cannot be run."""
 
 
@@ -309,6 +324,90 @@ def command(run: Run, run_dir: Path, state: str, args: list[str] | None = None) 
 
 
 RECORD_FILES = ("train.csv", "eval.csv", "config.yaml", "summary.json")
+REWARD_PIN = "reward.json"
+
+
+class RecordError(UserError, ValueError):
+    """A committed record whose pinned reward is missing or is not the file it pinned."""
+
+
+def sha256_file(path: str | Path) -> str:
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _repo_path(path: Path) -> str:
+    """``path`` relative to the working directory (the repository root, where studies run) when inside it."""
+    path = path.resolve()
+    return str(path.relative_to(Path.cwd().resolve())) if path.is_relative_to(Path.cwd().resolve()) else str(path)
+
+
+def pin_reward(record_dir: Path, committed: Path | None, ran_with: str, note: str = "") -> Path:
+    """Write ``record_dir/reward.json``: the committed reward file a reuse record reused and its sha256
+    (``committed=None``: the reward was not committed, ``note`` says so)."""
+    pin = {"checkpoint": _repo_path(committed) if committed is not None else None,
+           "sha256": sha256_file(committed) if committed is not None else None, "ran_with": ran_with}
+    if note:
+        pin["note"] = note
+    (record_dir / REWARD_PIN).write_text(json.dumps(pin, indent=1) + "\n")
+    return record_dir / REWARD_PIN
+
+
+def pinned_reward(run_dir: str | Path) -> Path | None:
+    """The reward file a record pins in ``reward.json``, its hash checked; None where it pins none (a run
+    directory, a record of a run that reused no learned reward). The pinned path is repository-relative: it
+    is looked up from the record's folder upwards, so the record evaluates from any working directory."""
+    run_dir = Path(run_dir)
+    f = run_dir / REWARD_PIN
+    if not f.is_file():
+        return None
+    try:
+        pin = json.loads(f.read_text())
+        checkpoint, digest = pin["checkpoint"], pin["sha256"]
+    except (ValueError, KeyError, TypeError):
+        raise RecordError(f"{f} is not a reward pin (a JSON object with checkpoint and sha256)") from None
+    if checkpoint is None:
+        raise RecordError(f"{run_dir}: the reward this run reused ({pin.get('ran_with')}) was not committed"
+                          + (f": {pin['note']}" if pin.get("note") else ""))
+    rel = Path(checkpoint)
+    where = [rel] if rel.is_absolute() else [a / rel for a in (run_dir.resolve(), *run_dir.resolve().parents, Path.cwd())]
+    found = next((w for w in where if w.is_file()), None)
+    if found is None:
+        raise RecordError(f"{f} pins {checkpoint}, which is not in this checkout")
+    if sha256_file(found) != digest:
+        raise RecordError(f"{found} is not the reward {f} pins (sha256 differs): the record's reward was changed or replaced")
+    return found
+
+
+def _pin_reuse_record(dst: Path, root: Path, files: Path) -> None:
+    """Pin the reward a freshly copied reuse record reused (``reward.json``), or say why it cannot be."""
+    try:
+        cfg = yaml.safe_load((dst / "config.yaml").read_text()) or {}
+        used = (cfg.get("reward") or {}).get("checkpoint") if cfg.get("phase") == "reuse" else None
+    except (OSError, yaml.YAMLError, AttributeError):
+        return
+    if not used:
+        return
+    live = Path(str(used)).resolve()
+    committed = None
+    if live.is_relative_to(root.resolve()):  # a run of the study: its record's copy
+        name = live.relative_to(root.resolve()).parts[0]
+        committed = files / name / "reward.pt"
+    elif live.is_file():  # a committed reward (or any file outside the run root), named as it is
+        committed = live
+    if committed is None or not committed.is_file():
+        print(f"drs-study: report: {dst.name} reused {used}, which the record does not hold: its reward.json is "
+              f"not written (commit that reward and pin it so that the record evaluates elsewhere)", file=sys.stderr)
+        return
+    if live.is_file() and live != committed.resolve() and sha256_file(live) != sha256_file(committed):
+        print(f"drs-study: report: {dst.name} reused {used}, which differs from {committed}: not pinned", file=sys.stderr)
+        return
+    pin_reward(dst, committed, str(used))
 
 
 def group_name(run_name: str) -> str:
@@ -444,6 +543,9 @@ def report(root: Path, runs: list[Run], out: Path, study_file: str | Path = "",
         rows.append(f"| `{r.name}` | {r.app} | {state} | {_frames(shown):,} ({asked if asked else 'its default'}) | {_last_eval(shown)} |")
         if (dst / "config.yaml").is_file() and state in DONE:  # the comparison: finished runs only (status.md has the rest)
             copied[r.app].append(dst)
+    for r in runs:  # after every copy: a reuse run's reward is the record of a phase-1 run listed after it
+        if r.app == "reuse" and (root / r.name / "train.csv").is_file() and (files / r.name / "config.yaml").is_file():
+            _pin_reuse_record(files / r.name, root, files)
     paths = {"status": out / "status.md"}
     head = f"Written by `drs-study {study_file} --report {out}`; states as `drs-study --status` sees them.\n\n"
     states = {r.name: study_state(root, record, r) for r in runs}
@@ -492,6 +594,7 @@ def _env_split(run_dir: Path) -> str:
     return str((cfg.get("env") or {}).get("split") or "-")
 
 
+@console_script("drs-study")
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="drs-study", description=__doc__.split("\n")[0])
     p.add_argument("study", help="study YAML file")

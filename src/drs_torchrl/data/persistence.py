@@ -5,6 +5,7 @@ buffer holding 1k transitions takes over a gigabyte). :func:`dump_buffer` writes
 slots, oldest first, as a memory-mapped TensorDict (one file per entry, nothing loaded whole in
 memory to write it); :func:`load_buffer` refills an empty buffer of the same layout from it, so the
 restored buffer holds the same transitions in the same age order and overwrites the oldest first.
+It checks the free space first: a memory map written past the end of a full disk faults (SIGBUS).
 """
 from __future__ import annotations
 
@@ -15,8 +16,11 @@ import torch
 from tensordict import TensorDict
 from torchrl.data import ReplayBuffer
 
+from drs_torchrl.console import UserError
+from drs_torchrl.rundir import ensure_free, nbytes
 
-class SnapshotError(ValueError):
+
+class SnapshotError(UserError, ValueError):
     """An on-disk TensorDict whose files are missing, truncated or not a TensorDict at all."""
 
 
@@ -67,10 +71,16 @@ def _filled(rb: ReplayBuffer):
     return [data[cursor:], data[:cursor]]  # full and wrapped: oldest first
 
 
+def buffer_bytes(rb: ReplayBuffer) -> int:
+    """The bytes :func:`dump_buffer` writes for ``rb`` (its filled slots)."""
+    return sum(nbytes(p) for p in _filled(rb))
+
+
 def dump_buffer(rb: ReplayBuffer, path: str | Path) -> dict:
     path = Path(path)
-    path.mkdir(parents=True, exist_ok=True)
     parts = _filled(rb)
+    ensure_free(path, sum(nbytes(p) for p in parts), "the buffer snapshot")
+    path.mkdir(parents=True, exist_ok=True)
     for i, part in enumerate(parts):
         part.memmap(path / f"part{i}", num_threads=0)
     meta = {"parts": len(parts), "len": len(rb), "capacity": rb.storage.max_size,
@@ -84,7 +94,10 @@ def dump_buffer(rb: ReplayBuffer, path: str | Path) -> dict:
 
 def load_buffer(rb: ReplayBuffer, path: str | Path) -> dict:
     path = Path(path)
-    meta = json.loads((path / "meta.json").read_text())
+    try:
+        meta = json.loads((path / "meta.json").read_text())
+    except (OSError, ValueError) as exc:
+        raise SnapshotError(f"{path / 'meta.json'} cannot be read (missing or corrupt): {exc}") from exc
     if len(rb):
         raise ValueError("load_buffer needs an empty buffer")
     if meta["len"] > rb.storage.max_size:

@@ -10,6 +10,9 @@ from __future__ import annotations
 import functools
 import sys
 
+from drs_torchrl.errors import UserError
+from drs_torchrl.console import console_script
+
 VULKAN_HELP = (
     "No usable Vulkan device: SAPIEN (ManiSkill3's simulator) needs one even for state "
     "observations. On a machine with an NVIDIA GPU install its driver with the Vulkan ICD. On a "
@@ -36,15 +39,15 @@ _SPLIT_ASSETS = {
 }
 
 
-class MissingAssetError(RuntimeError):
+class MissingAssetError(UserError, RuntimeError):
     """A ManiSkill asset the environment needs is not downloaded."""
 
 
-class VulkanUnavailableError(RuntimeError):
+class VulkanUnavailableError(UserError, RuntimeError):
     """SAPIEN found no Vulkan device."""
 
 
-class CudaUnavailableError(RuntimeError):
+class CudaUnavailableError(UserError, RuntimeError):
     """The config asks for CUDA (GPU simulation or learner) on a machine without it."""
 
 
@@ -117,20 +120,18 @@ def ensure_env_ready(env_id: str, env_kwargs: dict | None = None) -> None:
         )
 
 
+@console_script("drs-doctor")
 def main(argv: list[str] | None = None) -> int:
-    """Print the render device and step PickCube once; exit 1 with the fix if anything fails."""
-    try:
-        print("render device:", check_vulkan().strip().splitlines()[0] if check_vulkan().strip() else "?")
-        from drs_torchrl.envs.maniskill import ManiSkillEnv
+    """Print the render device and step PickCube once; a missing Vulkan device or asset ends in one line
+    with the fix (exit 2, through the console-script wrapper)."""
+    print("render device:", check_vulkan().strip().splitlines()[0] if check_vulkan().strip() else "?")
+    from drs_torchrl.envs.maniskill import ManiSkillEnv
 
-        env = ManiSkillEnv("PickCube-v1", ("is_grasped", "success"))
-        env.set_seed(0)
-        td = env.rand_step(env.reset())
-        env.close()
-        print("PickCube-v1 stepped:", tuple(td["next", "observation"].shape))
-    except (VulkanUnavailableError, MissingAssetError) as exc:
-        print(exc, file=sys.stderr)
-        return 1
+    env = ManiSkillEnv("PickCube-v1", ("is_grasped", "success"))
+    env.set_seed(0)
+    td = env.rand_step(env.reset())
+    env.close()
+    print("PickCube-v1 stepped:", tuple(td["next", "observation"].shape))
     print(family_asset_report())
     return 0
 

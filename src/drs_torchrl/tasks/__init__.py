@@ -13,6 +13,8 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
+from drs_torchrl.errors import UserError
+
 
 @dataclass(frozen=True)
 class TaskFamily:
@@ -133,11 +135,18 @@ def register_family(family: TaskFamily) -> TaskFamily:
     return family
 
 
+class UnknownFamilyError(UserError, KeyError):
+    """A task family name that no built-in or config-defined family has."""
+
+    def __str__(self) -> str:  # the message, not KeyError's repr of it
+        return str(self.args[0])
+
+
 def get_family(name: str) -> TaskFamily:
     try:
         return _FAMILIES[name]
     except KeyError:
-        raise KeyError(f"unknown task family {name!r}; known families: {sorted(_FAMILIES)}") from None
+        raise UnknownFamilyError(f"unknown task family {name!r}; known families: {sorted(_FAMILIES)}") from None
 
 
 def list_families(include_config: bool = False) -> list[str]:

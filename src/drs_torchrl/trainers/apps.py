@@ -10,6 +10,7 @@ Configs live in the repository's ``conf/`` (or ``$DRS_CONF_DIR``). Examples::
 """
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import signal
@@ -21,6 +22,9 @@ import hydra
 import yaml
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
+
+from drs_torchrl.console import UserError, console_script, user_error_message
+from drs_torchrl.rundir import DiskFullError, RunDirBusyError, RunFileError, load_run_config, lock_run_dir, unlock_run_dir
 
 GROUPS = ("env", "reward", "algo", "logger")
 # files by which a directory is recognised as holding a run (Hydra's own .hydra/ is not one: it
@@ -35,9 +39,33 @@ def _run_dir_resolver(resume, default):
 _STARTED = datetime.now().strftime("%Y%m%d-%H%M%S")  # one stamp per process: resolvers run more than once
 
 
+def _job_dir() -> str | None:
+    """The directory of the Hydra job being started (None outside one, e.g. ``--cfg``)."""
+    try:
+        out = HydraConfig.get().runtime.output_dir
+    except Exception:  # noqa: BLE001 (no Hydra job: nothing to lock)
+        return None
+    return str(out) if out else None
+
+
+_REFUSED: dict[str, str] = {}  # job directory -> the side record of a job refused there (another process writes it)
+
+
 def _hydra_subdir_resolver(resume, run_dir=None):
     """Where Hydra writes its record: ``.hydra`` for a new run, but never over another run's record
-    (a resume, or a new run pointed at a directory that holds a run, writes beside it)."""
+    (a resume, or a new run pointed at a directory that holds a run, writes beside it).
+
+    Hydra asks for this just before it writes the record, so the run directory's lock is taken here; a
+    directory another process holds gets the record beside, and the app then refuses and removes it."""
+    job = _job_dir()
+    if job is not None and job in _REFUSED:
+        return _REFUSED[job]  # asked again by the app: the same answer, even if the other writer is gone by now
+    if job is not None:
+        try:
+            lock_run_dir(job)
+        except RunDirBusyError:
+            _REFUSED[job] = f".hydra-refused-{os.getpid()}"
+            return _REFUSED[job]
     if resume:
         return ".hydra-resume-" + _STARTED
     if run_dir and any((Path(str(run_dir)) / m).exists() for m in RUN_MARKERS):
@@ -49,7 +77,7 @@ OmegaConf.register_new_resolver("drs_run_dir", _run_dir_resolver, replace=True)
 OmegaConf.register_new_resolver("drs_hydra_subdir", _hydra_subdir_resolver, replace=True)
 
 
-class ResumeError(ValueError):
+class ResumeError(UserError, ValueError):
     """``resume=RUN_DIR`` that cannot be honoured."""
 
 
@@ -59,7 +87,10 @@ def resume_config(run_dir: Path, phase: str, overrides: list[str], composed: Dic
     saved_path = run_dir / "config.yaml"
     if not saved_path.is_file():
         raise ResumeError(f"cannot resume: {run_dir} is not a drs-torchrl run directory (no config.yaml)")
-    saved = OmegaConf.load(saved_path)
+    try:
+        saved = load_run_config(run_dir, needs=("phase",))
+    except RunFileError as exc:
+        raise ResumeError(f"cannot resume: {exc}") from None
     if saved.get("phase") != phase:
         raise ResumeError(f"{run_dir} is a drs-{saved.get('phase')} run; resume it with drs-{saved.get('phase')}")
     for o in overrides:
@@ -94,7 +125,7 @@ def conf_dir() -> str:
     raise FileNotFoundError("cannot find drs-torchrl's conf/ directory; set DRS_CONF_DIR=/path/to/conf")
 
 
-class ExistingRunError(ValueError):
+class ExistingRunError(UserError, ValueError):
     """A fresh run pointed at a directory that already holds one."""
 
 
@@ -123,41 +154,50 @@ def check_fresh_run_dir(run_dir: Path, phase: str, overwrite: bool) -> None:
 
 
 def _run(cfg: DictConfig, phase: str) -> None:
-    from drs_torchrl.console import library_messages_requested, quiet_libraries, survive_closed_output
+    from drs_torchrl.console import library_messages_requested, quiet_libraries
 
-    survive_closed_output()  # a closed pipe (| tee, then Ctrl-C) must not cost the run its final save
     if not library_messages_requested(cfg):
         quiet_libraries()
-    from drs_torchrl.envs.doctor import CudaUnavailableError, MissingAssetError, VulkanUnavailableError
-    from drs_torchrl.tasks import family_from_config
-    from drs_torchrl.trainers.loop import ConfigError, NonFiniteError, TrainingStateError, train
-    from drs_torchrl.transforms.reward import RewardCheckpointError
+    from drs_torchrl.trainers.loop import NonFiniteError, train
 
     run_dir = HydraConfig.get().runtime.output_dir
     record = Path(run_dir) / HydraConfig.get().output_subdir if HydraConfig.get().output_subdir else None
+    locked = []
     try:
         resume = bool(cfg.get("resume"))
         if resume:
             run_dir = str(Path(cfg.resume))
+        # the one writer of the run directory (Hydra's record is already beside another writer's: the resolver locked)
+        locked.append(lock_run_dir(run_dir, "choose another hydra.run.dir"))
+        if resume:
             cfg = resume_config(Path(run_dir), phase, list(HydraConfig.get().overrides.task), composed=cfg)
         else:
             check_fresh_run_dir(Path(run_dir), phase, bool(cfg.get("overwrite", False)))
+        from drs_torchrl.tasks import family_from_config
+
         family_from_config(cfg.env)
         summary = train(cfg, phase, run_dir, resume=resume)
-    except (ConfigError, RewardCheckpointError, MissingAssetError, VulkanUnavailableError, CudaUnavailableError, TrainingStateError,
-            ResumeError, ExistingRunError, KeyError, ValueError) as exc:
-        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
-        print(f"drs-{phase}: error: {msg}", file=sys.stderr)
-        if record is not None and record.name.startswith((".hydra-resume-", ".hydra-new-")):
-            shutil.rmtree(record, ignore_errors=True)  # a failed resume leaves the run as it was
-            try:
-                record.parent.rmdir()  # only if Hydra made it for a path that was not a run
-            except OSError:
-                pass
-        sys.exit(2)
     except NonFiniteError as exc:
         print(f"drs-{phase}: stopped: {exc}", file=sys.stderr)
         sys.exit(3)
+    except Exception as exc:  # noqa: BLE001 (a bug is re-raised for the console wrapper to report)
+        msg = _user_message(exc, cfg, phase, run_dir)
+        if msg is None:
+            raise
+        print(f"drs-{phase}: error: {msg}", file=sys.stderr)
+        if not _disk_full(exc) and record is not None and record.name.startswith((".hydra-resume-", ".hydra-new-", ".hydra-refused-")):
+            shutil.rmtree(record, ignore_errors=True)  # a failed resume leaves the run as it was
+            if not locked:
+                try:
+                    record.parent.rmdir()  # only if Hydra made it for a path that was not a run
+                except OSError:
+                    pass
+        for d in locked:  # a directory made for this run that holds nothing else goes too
+            unlock_run_dir(d, remove_if_empty=True)
+        sys.exit(2)
+    finally:
+        for d in locked:
+            unlock_run_dir(d)  # the next job of a Hydra multirun may write here
     ev = summary.get("last_eval", {})
     print(
         f"drs-{phase}: {summary['frames']} env steps, {summary['updates']} SAC updates in "
@@ -173,12 +213,33 @@ def _run(cfg: DictConfig, phase: str) -> None:
         sys.exit(128 + int(summary.get("signal", signal.SIGINT)))
 
 
+def _disk_full(exc: Exception) -> bool:
+    return isinstance(exc, DiskFullError) or (isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT))
+
+
+def _user_message(exc: Exception, cfg: DictConfig, phase: str, run_dir) -> str | None:
+    """The one line for an error the user can fix (the config layer raises KeyError/ValueError), else None."""
+    msg = user_error_message(exc)
+    if _disk_full(exc):  # mid-run: what was saved is kept
+        state = Path(run_dir) / "checkpoints" / "state" / "COMPLETE"
+        if state.is_file():
+            return f"{msg}; the training state at {state.read_text()} env steps is kept: continue with drs-{phase} resume={run_dir}"
+        return f"{msg}; no training state was saved yet"
+    if msg is not None and msg.startswith("gymnasium:") and OmegaConf.select(cfg, "env.env_id", default=None):
+        return f"env.env_id={cfg.env.env_id}: {msg}"
+    if msg is None and isinstance(exc, (KeyError, ValueError)):
+        msg = str(exc.args[0] if isinstance(exc, KeyError) and exc.args else exc)
+    return msg
+
+
+@console_script("drs-learn", quiet=False)
 @hydra.main(config_path=conf_dir(), config_name="learn", version_base=None)
 def learn_main(cfg: DictConfig) -> None:
     """Phase 1: SAC on the training variants, stage buffers, per-stage discriminators."""
     _run(cfg, "learn")
 
 
+@console_script("drs-reuse", quiet=False)
 @hydra.main(config_path=conf_dir(), config_name="reuse", version_base=None)
 def reuse_main(cfg: DictConfig) -> None:
     """Phase 2: a fresh SAC agent on held-out variants with a frozen reward (or a baseline)."""

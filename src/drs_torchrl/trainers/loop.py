@@ -31,8 +31,9 @@ from torchrl.data import LazyTensorStorage, ReplayBuffer
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm.auto import tqdm
 
+from drs_torchrl.console import UserError
 from drs_torchrl.data import TrajectoryAssembler
-from drs_torchrl.data.persistence import SnapshotError, dump_buffer, load_buffer
+from drs_torchrl.data.persistence import SnapshotError, buffer_bytes, dump_buffer, load_buffer
 from drs_torchrl.demos import check_demos, load_demos, restage_demos, variant_mismatches
 from drs_torchrl.envs.factory import make_family_env
 from drs_torchrl.models import POLICY_FORMAT, POLICY_INTERMEDIATE_KEYS, read_policy_checkpoint
@@ -41,6 +42,7 @@ from drs_torchrl.precision import autocast, describe_precision, grad_scaler, res
 from drs_torchrl.rewards import LEARNED, reward_setup
 from drs_torchrl.transforms.classifier_reward import ClassifierReward
 from drs_torchrl.run_logger import RunLogger
+from drs_torchrl.rundir import ensure_free, nbytes, space_errors
 from drs_torchrl.trainers.factories import (
     make_collector,
     make_envs,
@@ -53,7 +55,7 @@ from drs_torchrl.trainers.factories import (
 from drs_torchrl.tasks import TASK_OBSERVATION_KEY, family_from_config
 
 
-class ConfigError(ValueError):
+class ConfigError(UserError, ValueError):
     """A configuration value that cannot work, with the fix in its message."""
 
 
@@ -501,6 +503,9 @@ class Trainer:
             "num_qvalue_nets": int(self.loss.num_qvalue_nets),
             "log_alpha": self.loss.log_alpha.detach().cpu(),
         }
+        # the training state written next must fit too: a run never holds checkpoints newer than its state
+        reward = nbytes(self.learner.reward.state_dict()) if self.learner is not None else 0
+        ensure_free(ck, nbytes(policy) + reward + self._state_bytes(self._state_payload()), "the checkpoints and training state in")
         atomic_torch_save(policy, ck / "policy.pt")
         paths["policy"] = str(ck / "policy.pt")
         return paths
@@ -525,8 +530,36 @@ class Trainer:
         final, tmp, old = ck / "state", ck / f"state.tmp-{os.getpid()}", ck / "state.old"
         for stale in ck.glob("state.tmp-*"):  # left by a process killed while saving
             shutil.rmtree(stale, ignore_errors=True)
-        tmp.mkdir(parents=True)
-        payload = {
+        if (final / "COMPLETE").is_file():
+            shutil.rmtree(old, ignore_errors=True)  # a fallback left by a crash while swapping: state is newer
+        payload = self._state_payload()
+        # checked before writing: memory-mapped buffers on a full disk fault (SIGBUS) instead of raising
+        ensure_free(ck, self._state_bytes(payload), "the training state in")
+        try:
+            with space_errors(tmp, "the training state"):
+                tmp.mkdir(parents=True)
+                dump_buffer(self.replay, tmp / "replay")
+                if self.learner is not None:
+                    self.learner.dump_buffers(tmp)
+                with open(tmp / "trainer.pt", "wb") as f:  # an open file: a full disk raises ENOSPC, not a RuntimeError
+                    torch.save(payload, f)
+                (tmp / "COMPLETE").write_text(str(self.frames))
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)  # the last complete state stays as it was
+            raise
+        # swap in: at every instant one complete state exists (final, else old)
+        if (final / "COMPLETE").is_file():
+            shutil.rmtree(old, ignore_errors=True)
+            final.rename(old)
+        elif final.exists():
+            shutil.rmtree(final)  # a partial state left by a crash; old (if any) stays the fallback
+        tmp.rename(final)
+        shutil.rmtree(old, ignore_errors=True)
+        return final
+
+    def _state_payload(self) -> dict:
+        """The training state apart from the buffers (``trainer.pt``)."""
+        return {
             "format": STATE_FORMAT,
             "version": STATE_VERSION,
             "phase": self.phase,
@@ -540,27 +573,21 @@ class Trainer:
             "recent_episodes": list(self.recent),
             "rng": {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()},
         }
-        dump_buffer(self.replay, tmp / "replay")
-        if self.learner is not None:
-            self.learner.dump_buffers(tmp)
-        torch.save(payload, tmp / "trainer.pt")
-        (tmp / "COMPLETE").write_text(str(self.frames))
-        # swap in: at every instant one complete state exists (final, else old)
-        if (final / "COMPLETE").is_file():
-            shutil.rmtree(old, ignore_errors=True)
-            final.rename(old)
-        elif final.exists():
-            shutil.rmtree(final)  # a partial state left by a crash; old (if any) stays the fallback
-        tmp.rename(final)
-        shutil.rmtree(old, ignore_errors=True)
-        return final
+
+    def _state_bytes(self, payload: dict) -> int:
+        """About the bytes the training state takes on disk: ``payload``'s tensors and the buffers' filled slots."""
+        learner_buffers = [b for b in vars(self.learner).values() if isinstance(b, ReplayBuffer)] if self.learner else []
+        return nbytes(payload) + sum(buffer_bytes(b) for b in {id(b): b for b in [self.replay, *learner_buffers]}.values())
 
     def load_training_state(self) -> None:
         state_dir = find_training_state(self.run_dir)
         try:
             payload = torch.load(state_dir / "trainer.pt", map_location="cpu", weights_only=False)
         except Exception as exc:
-            raise TrainingStateError(f"{state_dir / 'trainer.pt'} cannot be read (corrupt?): {exc}") from exc
+            why = str(exc).split(". ")[0].split("\n")[0]
+            raise TrainingStateError(f"{state_dir / 'trainer.pt'} cannot be read (corrupt or truncated: {why}); the run cannot "
+                                     "continue from it: start it afresh with overwrite=true (its checkpoints/reward.pt and "
+                                     "policy.pt are separate files: copy them first to keep them)") from exc
         if payload.get("format") != STATE_FORMAT or int(payload.get("version", 99)) > STATE_VERSION:
             raise TrainingStateError(f"{state_dir} was not written by this version of drs-torchrl")
         if payload["phase"] != self.phase:
@@ -694,13 +721,17 @@ class Trainer:
             summary["signal"] = int(signal.SIGINT)
             tqdm.write(f"forced stop at {self.frames} env steps: the last periodic training state is kept "
                        "(the buffers may be mid-write, so nothing is saved now)")
-        except NonFiniteError:
+        except Exception:  # NaN, a full disk, ...: the collector's worker must not outlive the run
             bar.close()
             self.close()
             raise
         finally:
             bar.close()
-        return self._finish(summary, win, t0, frames0, interrupted, forced)
+        try:
+            return self._finish(summary, win, t0, frames0, interrupted, forced)
+        except Exception:
+            self.close()
+            raise
 
     def _reached_stop_success(self, row: dict, summary: dict) -> bool:
         """``stop_at_success``: the training success rate over a full episode window reached it (phase 1
@@ -898,7 +929,7 @@ def backward_and_step(grad_scaler, loss: torch.Tensor, optimizers) -> None:
     grad_scaler.update()
 
 
-class TrainingStateError(RuntimeError):
+class TrainingStateError(UserError, RuntimeError):
     """A run directory whose training state cannot be resumed."""
 
 
@@ -925,15 +956,24 @@ def find_training_state(run_dir: Path) -> Path:
 
 
 def atomic_torch_save(obj, path: Path) -> None:
-    tmp = path.with_name(path.name + f".tmp-{os.getpid()}")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
+    """``torch.save`` into a temporary file renamed over ``path``: ``path`` is the old file or the new one,
+    never a part (a full disk raises :class:`~drs_torchrl.rundir.DiskFullError` and leaves the old one)."""
+    _atomic_write(path, lambda f: torch.save(obj, f), "wb")
 
 
 def atomic_write_text(path: Path, text: str) -> None:
+    _atomic_write(path, lambda f: f.write(text), "w")
+
+
+def _atomic_write(path: Path, write, mode: str) -> None:
     tmp = path.with_name(path.name + f".tmp-{os.getpid()}")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    try:
+        with space_errors(path, "the file"), open(tmp, mode) as f:
+            write(f)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 class _StopRequest:

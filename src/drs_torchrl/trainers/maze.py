@@ -81,7 +81,9 @@ from drs_torchrl.maze_analysis import (  # noqa: F401 (re-exported: the maze's a
     reward_diagnostics,
     reward_label,
 )
+from drs_torchrl.console import console_script
 from drs_torchrl.run_logger import RunLogger
+from drs_torchrl.rundir import lock_run_dir
 from drs_torchrl.transforms import ClassifierReward, DrSReward, SemiSparseReward, StageIndicator, load_reward
 
 # the paper's learned baselines (Sec. 5.2, Appendix F.2) on the same core: classifier -> (output, offset),
@@ -584,20 +586,17 @@ def _conf_dir() -> str:
     raise FileNotFoundError("cannot find drs-torchrl's conf/ directory (conf/maze.yaml); set DRS_CONF_DIR=/path/to/conf")
 
 
+@console_script("drs-maze")  # DRS_LIBRARY_MESSAGES=1 shows TorchRL's storage notices again
 @hydra.main(config_path=_conf_dir(), config_name="maze", version_base=None)
 def main(cfg: DictConfig) -> None:
     """``drs-maze phase=learn|reuse|report ...`` (see conf/maze.yaml)."""
-    from drs_torchrl.console import library_messages_requested, quiet_libraries, survive_closed_output
-
-    survive_closed_output()
-    if not library_messages_requested():  # DRS_LIBRARY_MESSAGES=1 shows TorchRL's storage notices again
-        quiet_libraries()
     try:
         if cfg.phase == "report":
             res = report(cfg.report.root, cfg.report.out)
             print(f"drs-maze: report of {res['runs']} runs in {res['out']}")
             return
         run_dir = HydraConfig.get().runtime.output_dir
+        lock_run_dir(run_dir, "choose another hydra.run.dir")  # the one writer of the run directory
         s = train(cfg, run_dir)
     except (MazeConfigError, ValueError, FileNotFoundError) as exc:
         print(f"drs-maze: error: {exc}", file=sys.stderr)

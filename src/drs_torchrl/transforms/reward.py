@@ -25,13 +25,15 @@ from tensordict import TensorDictBase
 from torch import nn
 from torchrl.envs.transforms import Transform
 
+from drs_torchrl.errors import UserError
+
 CHECKPOINT_FORMAT = "drs-torchrl/reward"
 CHECKPOINT_VERSION = 1
 FORMULAS = ("paper", "rescaled", "sum")
 _ACTIVATIONS = {"sigmoid": nn.Sigmoid, "relu": nn.ReLU, "tanh": nn.Tanh, "elu": nn.ELU}
 
 
-class RewardCheckpointError(ValueError):
+class RewardCheckpointError(UserError, ValueError):
     """A reward checkpoint that cannot be used: corrupt, foreign, too new, or mismatched."""
 
 
