@@ -161,7 +161,7 @@ def test_no_vulkan_device_says_how_to_install_one(tmp_path):
     assert p.returncode == 2
     assert "No usable Vulkan device" in p.stderr and "mesa-vulkan-drivers" in p.stderr
     p = subprocess.run([str(BIN / "drs-doctor")], env=env, capture_output=True, text=True, timeout=300)
-    assert p.returncode == 1 and "bookworm-backports" in p.stderr
+    assert p.returncode == 2 and "bookworm-backports" in p.stderr
 
 
 def test_cuda_requested_without_cuda(tmp_path):

@@ -115,7 +115,7 @@ def test_reuse_resumes_and_bad_resumes_leave_the_run_untouched(tmp_path, cli):
     assert p.returncode == 0, p.stderr[-3000:]
     before = _digest(run_dir)
     for bad, code, expect in [(["algo=sac_paper"], 2, "cannot switch config group 'algo'"),
-                              (["algo.no_such_key=1"], 1, "no_such_key"),  # Hydra refuses it when composing
+                              (["algo.no_such_key=1"], 2, "no_such_key"),  # Hydra refuses it when composing: one line, exit 2
                               (["total_frames=-3"], 2, "total_frames must be > 0")]:
         got, err = cli("reuse", f"resume={run_dir}", *bad)  # the console script's app, in this process
         assert got == code and expect in err, err[-2000:]
