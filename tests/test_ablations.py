@@ -1,4 +1,5 @@
 """The paper's ablations as configs (Sec. 5.4.1, Appendix F): stage subsets, placed thresholds, sum of tanh."""
+
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
@@ -28,15 +29,18 @@ def test_stage_subsets_keep_order_and_end_with_success():
         with_stages(pnp, ["is_obj_placed", "is_grasped", "success"])
 
 
-@pytest.mark.parametrize("ablation,env,check", [
-    ("one_stage", "turn_valve", lambda c, f: f.stage_keys == ("success",)),
-    ("pnp_grasped_success", "pick_and_place", lambda c, f: f.stage_keys == ("is_grasped", "success")),
-    ("pnp_placed_success", "pick_and_place", lambda c, f: f.stage_keys == ("is_obj_placed", "success")),
-    ("placed_2_5cm", "pick_and_place", lambda c, f: c.env.variant_overrides.placed_thresh == 0.025),
-    ("placed_5cm", "pick_and_place", lambda c, f: c.env.variant_overrides.placed_thresh == 0.05),
-    ("placed_10cm", "pick_and_place", lambda c, f: c.env.variant_overrides.placed_thresh == 0.10),
-    ("sum_of_tanh", "pick_and_place", lambda c, f: c.reward.formula == "sum" and f.num_stages == 3),
-])
+@pytest.mark.parametrize(
+    "ablation,env,check",
+    [
+        ("one_stage", "turn_valve", lambda c, f: f.stage_keys == ("success",)),
+        ("pnp_grasped_success", "pick_and_place", lambda c, f: f.stage_keys == ("is_grasped", "success")),
+        ("pnp_placed_success", "pick_and_place", lambda c, f: f.stage_keys == ("is_obj_placed", "success")),
+        ("placed_2_5cm", "pick_and_place", lambda c, f: c.env.variant_overrides.placed_thresh == 0.025),
+        ("placed_5cm", "pick_and_place", lambda c, f: c.env.variant_overrides.placed_thresh == 0.05),
+        ("placed_10cm", "pick_and_place", lambda c, f: c.env.variant_overrides.placed_thresh == 0.10),
+        ("sum_of_tanh", "pick_and_place", lambda c, f: c.reward.formula == "sum" and f.num_stages == 3),
+    ],
+)
 def test_each_ablation_is_one_config(ablation, env, check):
     for app in ("learn", "reuse"):
         c = cfg(f"env={env}", f"+ablation={ablation}", app=app)
@@ -54,14 +58,21 @@ def test_one_stage_env_and_reward_and_the_reuse_hint(tmp_path):
         check_env_specs(env)
         td = env.rollout(5)
         assert int(td["next", "stage"].max()) <= 1
-        reward = DrSReward.from_spec(env.observation_spec, 1, ["observation", "stage_indicators"],
-                                     metadata={"family": "turn_valve", "stage_keys": ["success"]})
+        reward = DrSReward.from_spec(
+            env.observation_spec,
+            1,
+            ["observation", "stage_indicators"],
+            metadata={"family": "turn_valve", "stage_keys": ["success"]},
+        )
         path = reward.save(tmp_path / "one.pt")
     finally:
         env.close()
     full = make_family_env(get_family("turn_valve"), "test", seed=0)
     try:
-        with pytest.raises(RewardCheckpointError, match=r"1 stages, the env's family has 2 \(it was learned with env.stages=\[success\]"):
+        with pytest.raises(
+            RewardCheckpointError,
+            match=r"1 stages, the env's family has 2 \(it was learned with env.stages=\[success\]",
+        ):
             DrSReward.from_checkpoint(path).check_compatible(full.observation_spec, num_stages=2, family="turn_valve")
     finally:
         full.close()
@@ -83,7 +94,9 @@ def test_placed_threshold_moves_the_stage_indicator_and_not_success():
             u = env.base_env.unwrapped
             goal = u.goal_site.pose.p.clone()
             u.obj.set_pose(Pose.create_from_pq(goal + torch.tensor([offset, 0.0, 0.0]), u.obj.pose.q))
-            return {k: bool(v[0]) for k, v in u.evaluate().items() if k in ("is_obj_placed", "success", "is_robot_static")}
+            return {
+                k: bool(v[0]) for k, v in u.evaluate().items() if k in ("is_obj_placed", "success", "is_robot_static")
+            }
         finally:
             env.close()
 

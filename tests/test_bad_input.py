@@ -1,4 +1,5 @@
 """Bad input mid-run: non-finite values stop the run and keep the last good checkpoint."""
+
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
@@ -10,9 +11,17 @@ from drs_torchrl.transforms import DrSReward
 pytestmark = pytest.mark.sim
 
 TINY = [
-    "total_frames=1024", "algo.learning_starts=128", "algo.batch_size=32", "algo.hidden=[16,16]",
-    "logger.interval=128", "eval.interval=100000", "eval.episodes=0", "checkpoint_interval=256",
-    "logger.progress_bar=false", "logger.tensorboard=false", "reward.disc.batch_size=16",
+    "total_frames=1024",
+    "algo.learning_starts=128",
+    "algo.batch_size=32",
+    "algo.hidden=[16,16]",
+    "logger.interval=128",
+    "eval.interval=100000",
+    "eval.episodes=0",
+    "checkpoint_interval=256",
+    "logger.progress_bar=false",
+    "logger.tensorboard=false",
+    "reward.disc.batch_size=16",
 ]
 
 

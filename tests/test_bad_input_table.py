@@ -1,5 +1,6 @@
 """results/bad_inputs/README.md is what results/bad_inputs/bad_input_table.py gets now: every bad input of every console
 script is refused (non-zero exit) without touching an existing run, and the committed table is current."""
+
 import re
 import subprocess
 import sys
@@ -25,8 +26,13 @@ def rows(text: str) -> dict[str, list[str]]:
 @pytest.fixture(scope="module")
 def table(tmp_path_factory):
     out = tmp_path_factory.mktemp("table") / "README.md"
-    p = subprocess.run([sys.executable, str(ROOT / "results" / "bad_inputs" / "bad_input_table.py"), "--out", str(out)], cwd=ROOT,
-                       capture_output=True, text=True, timeout=1500)
+    p = subprocess.run(
+        [sys.executable, str(ROOT / "results" / "bad_inputs" / "bad_input_table.py"), "--out", str(out)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=1500,
+    )
     assert out.is_file(), p.stderr[-3000:]
     return p, rows(out.read_text())
 
@@ -45,23 +51,42 @@ def test_the_committed_table_is_current(table):
     committed = rows((ROOT / "results" / "bad_inputs" / "README.md").read_text())
     assert set(got) == set(committed)
     ran = [n for n in got if got[n][0] != "-" and committed[n][0] != "-"]  # "-": not run on that machine (no tmpfs)
-    assert {n: (got[n][0], got[n][2], got[n][3]) for n in ran} == {n: (committed[n][0], committed[n][2], committed[n][3]) for n in ran}
+    assert {n: (got[n][0], got[n][2], got[n][3]) for n in ran} == {
+        n: (committed[n][0], committed[n][2], committed[n][3]) for n in ran
+    }
 
 
-@pytest.mark.parametrize("case,pattern", [
-    ("two runs started at once into one directory",
-     r"^drs-learn: error: \S+/run is being written by another process \(pid \d+\); .*choose another hydra\.run\.dir$"),
-    ("a full disk while saving the training state (3 MB filesystem)",
-     r"^drs-learn: error: not enough space to write .* it needs about [\d.]+ MiB, [\d.]+ MiB are free; .*"
-     r"the training state at 2048 env steps is kept: continue with drs-learn resume="),
-    ("resume of a run whose config.yaml is not valid YAML",
-     r"^drs-learn: error: cannot resume: \S+/config\.yaml is damaged \(not valid YAML at line \d+\); restore it"),
-    ("drs-eval --video naming a file", r"^drs-eval: error: --video \S+ is a file, not a folder"),
-    ("config-defined family with an env id ManiSkill does not know",
-     r"^drs-learn: error: env\.env_id=PushCub-v1: gymnasium: Environment `PushCub` doesn't exist.*PushCube"),
-    ("unknown reward", r"^drs-learn: error: In 'learn': Could not find 'reward/vice'; Available options in 'reward': dense, drs"),
-    ("drs-demos --out naming a folder that is not demonstrations", r"^drs-demos: error: --out \S+ is a folder that does not"),
-])
+@pytest.mark.parametrize(
+    "case,pattern",
+    [
+        (
+            "two runs started at once into one directory",
+            r"^drs-learn: error: \S+/run is being written by another process \(pid \d+\); .*choose another hydra\.run\.dir$",
+        ),
+        (
+            "a full disk while saving the training state (3 MB filesystem)",
+            r"^drs-learn: error: not enough space to write .* it needs about [\d.]+ MiB, [\d.]+ MiB are free; .*"
+            r"the training state at 2048 env steps is kept: continue with drs-learn resume=",
+        ),
+        (
+            "resume of a run whose config.yaml is not valid YAML",
+            r"^drs-learn: error: cannot resume: \S+/config\.yaml is damaged \(not valid YAML at line \d+\); restore it",
+        ),
+        ("drs-eval --video naming a file", r"^drs-eval: error: --video \S+ is a file, not a folder"),
+        (
+            "config-defined family with an env id ManiSkill does not know",
+            r"^drs-learn: error: env\.env_id=PushCub-v1: gymnasium: Environment `PushCub` doesn't exist.*PushCube",
+        ),
+        (
+            "unknown reward",
+            r"^drs-learn: error: In 'learn': Could not find 'reward/vice'; Available options in 'reward': dense, drs",
+        ),
+        (
+            "drs-demos --out naming a folder that is not demonstrations",
+            r"^drs-demos: error: --out \S+ is a folder that does not",
+        ),
+    ],
+)
 def test_issue_48_cases_are_one_line_with_the_fix(table, case, pattern):
     """Two writers, a full disk, damaged files: one line naming the path or value and what to do."""
     _, got = table

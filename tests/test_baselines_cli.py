@@ -1,5 +1,6 @@
 """Every learned baseline through drs-learn and drs-reuse at tiny budgets (real MuJoCo HalfCheetah, whose
 one stage a tiny return threshold makes reachable), resume of a classifier run, and the demo checks."""
+
 import json
 import os
 import shutil
@@ -16,17 +17,29 @@ from drs_torchrl.transforms import ClassifierReward, load_reward
 pytestmark = [pytest.mark.sim, pytest.mark.slow]
 BIN = Path(sys.executable).parent
 TINY = [
-    "env=half_cheetah", "env.max_episode_steps=100", "env.variant_overrides.success_return=1.0",
-    "total_frames=384", "algo.learning_starts=128", "algo.batch_size=32", "algo.hidden=[32,32]",
-    "reward.disc.batch_size=16", "logger.interval=128", "eval.interval=100000", "eval.episodes=1",
-    "checkpoint_interval=100000", "logger.progress_bar=false", "logger.tensorboard=false",
+    "env=half_cheetah",
+    "env.max_episode_steps=100",
+    "env.variant_overrides.success_return=1.0",
+    "total_frames=384",
+    "algo.learning_starts=128",
+    "algo.batch_size=32",
+    "algo.hidden=[32,32]",
+    "reward.disc.batch_size=16",
+    "logger.interval=128",
+    "eval.interval=100000",
+    "eval.episodes=1",
+    "checkpoint_interval=100000",
+    "logger.progress_bar=false",
+    "logger.tensorboard=false",
     "algo.collector._target_=torchrl.collectors.Collector",
 ]
 
 
 def _run(cmd, *args, cwd):
     env = dict(os.environ, PYTHONWARNINGS="ignore", OMP_NUM_THREADS="1")
-    return subprocess.run([str(BIN / cmd), *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=600, check=False)
+    return subprocess.run(
+        [str(BIN / cmd), *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=600, check=False
+    )
 
 
 @pytest.fixture(scope="module")
@@ -45,21 +58,46 @@ def demos(tmp_path_factory):
     actor, _ = make_sac_modules(env.observation_spec, env.action_spec, ["observation", "stage_indicators"], [32, 32])
     env.close()
     (d / "run" / "checkpoints").mkdir(parents=True)
-    torch.save({"format": POLICY_FORMAT, "version": 1, "frames": 0, "family": "half_cheetah",
-                "policy_in_keys": ["observation", "stage_indicators"], "hidden": [32, 32], "actor": actor.state_dict()},
-               d / "run" / "checkpoints" / "policy.pt")
-    OmegaConf.save(OmegaConf.create({"env": {"family": "half_cheetah", "split": "train", "max_episode_steps": 100,
-                                             "variant_overrides": {"success_return": 0.0}}}), d / "run" / "config.yaml")
-    states, meta = record_policy_demos(d / "run", None, 4, seed=1, deterministic=False, max_episodes=400, progress=False)
+    torch.save(
+        {
+            "format": POLICY_FORMAT,
+            "version": 1,
+            "frames": 0,
+            "family": "half_cheetah",
+            "policy_in_keys": ["observation", "stage_indicators"],
+            "hidden": [32, 32],
+            "actor": actor.state_dict(),
+        },
+        d / "run" / "checkpoints" / "policy.pt",
+    )
+    OmegaConf.save(
+        OmegaConf.create(
+            {
+                "env": {
+                    "family": "half_cheetah",
+                    "split": "train",
+                    "max_episode_steps": 100,
+                    "variant_overrides": {"success_return": 0.0},
+                }
+            }
+        ),
+        d / "run" / "config.yaml",
+    )
+    states, meta = record_policy_demos(
+        d / "run", None, 4, seed=1, deterministic=False, max_episodes=400, progress=False
+    )
     assert "action" in states.keys() and "state" in states.keys() and meta["actions"]["size"] == 6
     return save_demos(states, meta, d / "hc.demos")
 
 
-@pytest.mark.parametrize("method,extra", [
-    ("vice_raq", []),
-    ("oril", ["reward.random_episodes=2", "reward.offline_updates=20"]),
-    ("gail", []),
-])
+@pytest.mark.parametrize(
+    "method,extra",
+    [
+        ("vice_raq", []),
+        ("oril", ["reward.random_episodes=2", "reward.offline_updates=20"]),
+        ("gail", []),
+    ],
+)
 def test_each_learned_baseline_learns_and_is_reused(tmp_path, demos, method, extra):
     learn = tmp_path / "learn"
     args = [*TINY, f"reward={method}", *extra, f"hydra.run.dir={learn}", "seed=1"]
@@ -81,8 +119,15 @@ def test_each_learned_baseline_learns_and_is_reused(tmp_path, demos, method, ext
     # reuse: the frozen classifier (gail also as gail_stages, with the semi-sparse term)
     for name in [method] + (["gail_stages"] if method == "gail" else []):
         out = tmp_path / f"reuse_{name}"
-        p = _run("drs-reuse", *TINY, f"reward={name}", f"reward.checkpoint={ck}", "env.split=test",
-                 f"hydra.run.dir={out}", cwd=tmp_path)
+        p = _run(
+            "drs-reuse",
+            *TINY,
+            f"reward={name}",
+            f"reward.checkpoint={ck}",
+            "env.split=test",
+            f"hydra.run.dir={out}",
+            cwd=tmp_path,
+        )
         assert p.returncode == 0, p.stderr[-3000:]
         assert json.loads((out / "summary.json").read_text())["updates"] > 0
 
@@ -154,7 +199,15 @@ def test_fine_tuning_starts_from_the_phase1_agent(tmp_path):
     with pytest.raises(ConfigError, match="hidden \\[32, 32\\].*hidden \\[16, 16\\]"):
         Trainer(cfg, "reuse", tmp_path / "bad")
     out = tmp_path / "cli"
-    p = _run("drs-reuse", *static, "reward=semi_sparse", f"init_from={learn}", "env.split=test", f"hydra.run.dir={out}", cwd=tmp_path)
+    p = _run(
+        "drs-reuse",
+        *static,
+        "reward=semi_sparse",
+        f"init_from={learn}",
+        "env.split=test",
+        f"hydra.run.dir={out}",
+        cwd=tmp_path,
+    )
     assert p.returncode == 0, p.stderr[-3000:]
     assert json.loads((out / "summary.json").read_text())["init_from"] == str(learn)
 
@@ -218,7 +271,9 @@ def test_demonstrations_in_the_sac_batch_only_leave_the_stage_buffers_to_the_age
 
     top = None
     for filed in (True, False):
-        tr = Trainer(cfg("demos.sac_share=0.25", f"demos.stage_buffers={str(filed).lower()}"), "learn", tmp_path / f"run{filed}")
+        tr = Trainer(
+            cfg("demos.sac_share=0.25", f"demos.stage_buffers={str(filed).lower()}"), "learn", tmp_path / f"run{filed}"
+        )
         try:
             assert tr._demo_batch == 8
             n_top = int(tr.learner.stage_buffers.stage_counts()[-1])
@@ -284,7 +339,10 @@ def test_sac_share_auto_shares_where_the_demonstrations_allow_and_says_why_not(t
     wide = torch.cat(episodes)
     wide.set("action", torch.cat([wide["action"], wide["action"]], -1))
     wide_path = save_demos(wide, {**meta, "actions": {**meta["actions"], "size": 12}}, tmp_path / "wide.demos")
-    for name, extra in (("b", [f"demos.path={wide_path}"]), ("c", [])):   # another controller's actions; no demonstrations
+    for name, extra in (
+        ("b", [f"demos.path={wide_path}"]),
+        ("c", []),
+    ):  # another controller's actions; no demonstrations
         tr = trainer(name, *extra)
         try:
             assert tr.demo_replay is None and tr._demo_batch == 0 and tr.cfg.demos.sac_share == 0.0
@@ -292,7 +350,7 @@ def test_sac_share_auto_shares_where_the_demonstrations_allow_and_says_why_not(t
             tr.close()
     out = capsys.readouterr().out
     assert "demos.sac_share=auto -> 0: demos.sac_share: the actions in" in out and "12-dimensional" in out
-    assert out.count("demos.sac_share=auto") == 1   # a run without demonstrations has nothing to say
+    assert out.count("demos.sac_share=auto") == 1  # a run without demonstrations has nothing to say
 
 
 @pytest.mark.parametrize("use_action", [False, True])
@@ -304,12 +362,21 @@ def test_a_classifier_reward_in_an_env_passes_torchrl_spec_checks(use_action):
 
     env = make_family_env(get_family("half_cheetah"), "train", seed=0, max_episode_steps=20)
     try:
-        r = ClassifierReward(["observation", "stage_indicators"], {"observation": 17, "stage_indicators": 1}, 1,
-                             use_action=use_action, action_dim=6 if use_action else None, stage_weight=0.5)
+        r = ClassifierReward(
+            ["observation", "stage_indicators"],
+            {"observation": 17, "stage_indicators": 1},
+            1,
+            use_action=use_action,
+            action_dim=6 if use_action else None,
+            stage_weight=0.5,
+        )
         env.append_transform(r)
         check_env_specs(env)
         td = env.rollout(5)
         lo, hi = r.reward_bounds()
-        assert env.reward_spec.space.low.item() == pytest.approx(lo) and ((td["next", "reward"] >= lo) & (td["next", "reward"] <= hi)).all()
+        assert (
+            env.reward_spec.space.low.item() == pytest.approx(lo)
+            and ((td["next", "reward"] >= lo) & (td["next", "reward"] <= hi)).all()
+        )
     finally:
         env.close()

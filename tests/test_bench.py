@@ -1,4 +1,5 @@
 """drs-bench's roofline: the bound it reports follows from the measured GEMM rate and FLOP count."""
+
 import os
 
 import pytest
@@ -16,7 +17,9 @@ def test_roofline_bound_is_the_core_time_formula(monkeypatch):
         "raw_sim_steps_per_s": 500.0,
         "learn": [{"algo": "sac_cpu", "utd": 0.5}],
         "plain": [{"batch_size": 256, "env_steps_per_s": 100.0, "updates_per_s_overall": 50.0}],
-        "components": [{"algo": "sac_cpu", "batch_size": 256, "width": 256, "sac_update_gflop": 1.6, "sac_update_ms": 15.0}],
+        "components": [
+            {"algo": "sac_cpu", "batch_size": 256, "width": 256, "sac_update_gflop": 1.6, "sac_update_ms": 15.0}
+        ],
     }
     (row,) = roofline(res)
     cores = os.cpu_count() or 1
@@ -27,16 +30,29 @@ def test_roofline_bound_is_the_core_time_formula(monkeypatch):
     res["components"][0]["sac_update_gflop"] = 16.0
     (row2,) = roofline(res)
     assert row2["env_steps_per_s_bound"] < row["env_steps_per_s_bound"]
-    res.update(command="drs-bench", family="pick_cube", collect={}, roofline=[row],
-               machine={"cpus": cores, "torch_threads": 1, "platform": "x", "torch": "x", "cuda": False})
+    res.update(
+        command="drs-bench",
+        family="pick_cube",
+        collect={},
+        roofline=[row],
+        machine={"cpus": cores, "torch_threads": 1, "platform": "x", "torch": "x", "cuda": False},
+    )
     res["learn"] = []
     res["components"] = []
     assert "env steps/s bound" in render_markdown(res)
     # a bracketed plain-loop measurement shows both halves; a bf16 component gets its own roofline row
-    res["plain"] = [{"batch_size": 256, "env_steps_per_s": 100.0, "updates_per_s_overall": 50.0, "before": 90.0, "after": 110.0}]
+    res["plain"] = [
+        {"batch_size": 256, "env_steps_per_s": 100.0, "updates_per_s_overall": 50.0, "before": 90.0, "after": 110.0}
+    ]
     assert "100.0 (before 90.0, after 110.0)" in render_markdown(res)
-    comp = {"algo": "sac_cpu", "batch_size": 256, "width": 256, "sac_update_gflop": 1.6, "sac_update_ms": 15.0,
-            "sac_update_ms_by_precision": {"fp32": 15.0, "bf16": 12.0}}
+    comp = {
+        "algo": "sac_cpu",
+        "batch_size": 256,
+        "width": 256,
+        "sac_update_gflop": 1.6,
+        "sac_update_ms": 15.0,
+        "sac_update_ms_by_precision": {"fp32": 15.0, "bf16": 12.0},
+    }
     rows = roofline({**res, "components": [comp], "learn": [{"algo": "sac_cpu", "utd": 0.5}]})
     assert [r["precision"] for r in rows] == ["fp32", "bf16"] and rows[1]["update_ms_measured"] == 12.0
 
@@ -52,22 +68,44 @@ def test_fewer_updates_rows_are_compared_with_the_plain_loop_at_the_same_samples
         parse_algo("sac_cpu:fp64", ["fp32"])
     # the plain-loop reference reads the composed config (sac_cpu_utd025 extends sac_cpu through its defaults list)
     assert algo_settings("sac_cpu_utd025") == (512, 0.25, 2, 256) and algo_settings("sac_cpu") == (256, 0.5, 1, 256)
-    learn = {"algo": "sac_cpu_utd025", "utd": 0.25, "batch_size": 512, "collector": "inproc", "precision": "bf16",
-             "env_steps_per_s": 130.0, "updates_per_s": 32.5, "over_plain": 1.3, "over_plain_same_updates": 0.9,
-             "plain_reference": {"batch_size": 256, "utd": 0.5}}
-    plain = [{"batch_size": 256, "utd": 0.5, "env_steps_per_s": 100.0, "updates_per_s_overall": 50.0},
-             {"batch_size": 512, "utd": 0.25, "disc_updates": 2, "env_steps_per_s": 144.0, "updates_per_s_overall": 36.0}]
+    learn = {
+        "algo": "sac_cpu_utd025",
+        "utd": 0.25,
+        "batch_size": 512,
+        "collector": "inproc",
+        "precision": "bf16",
+        "env_steps_per_s": 130.0,
+        "updates_per_s": 32.5,
+        "over_plain": 1.3,
+        "over_plain_same_updates": 0.9,
+        "plain_reference": {"batch_size": 256, "utd": 0.5},
+    }
+    plain = [
+        {"batch_size": 256, "utd": 0.5, "env_steps_per_s": 100.0, "updates_per_s_overall": 50.0},
+        {"batch_size": 512, "utd": 0.25, "disc_updates": 2, "env_steps_per_s": 144.0, "updates_per_s_overall": 36.0},
+    ]
     comp = {"algo": "sac_cpu_utd025", "batch_size": 512, "width": 256, "sac_update_gflop": 3.2, "sac_update_ms": 30.0}
     res = {"raw_sim_steps_per_s": 500.0, "learn": [learn], "plain": plain, "components": [comp]}
     (row,) = roofline(res)
     cores = os.cpu_count() or 1
     assert row["env_steps_per_s_bound"] == pytest.approx(cores / (0.25 * 3.2 / row["gemm_gflops_1_thread"] + 1 / 500.0))
     assert row["plain_env_steps_per_s"] == 100.0  # the reference (256, 0.5), not the same-lever loop at 512
-    res.update(command="drs-bench", family="pick_cube", collect={}, roofline=[row],
-               machine={"cpus": cores, "torch_threads": 1, "platform": "x", "torch": "x", "cuda": False}, components=[])
+    res.update(
+        command="drs-bench",
+        family="pick_cube",
+        collect={},
+        roofline=[row],
+        machine={"cpus": cores, "torch_threads": 1, "platform": "x", "torch": "x", "cuda": False},
+        components=[],
+    )
     md = render_markdown(res)
-    assert "| phase 1, sac_cpu_utd025 (batch 512, UTD 0.25), inproc collector, bf16 | 130.0 | 32.5 | 1.30x | 0.90x |" in md
-    assert "| plain single-file PyTorch DrS loop (batch 512, UTD 0.25, 2 discriminator steps per update), fp32 | 144.0 |" in md
+    assert (
+        "| phase 1, sac_cpu_utd025 (batch 512, UTD 0.25), inproc collector, bf16 | 130.0 | 32.5 | 1.30x | 0.90x |" in md
+    )
+    assert (
+        "| plain single-file PyTorch DrS loop (batch 512, UTD 0.25, 2 discriminator steps per update), fp32 | 144.0 |"
+        in md
+    )
 
 
 def test_bench_console_is_free_of_library_notices(tmp_path):
@@ -75,15 +113,44 @@ def test_bench_console_is_free_of_library_notices(tmp_path):
     import subprocess
     import sys
 
-    env = {k: v for k, v in os.environ.items() if k not in ("RL_WARNINGS", "DRS_LIBRARY_MESSAGES", "DRS_QUIET_LIBRARIES")}
+    env = {
+        k: v for k, v in os.environ.items() if k not in ("RL_WARNINGS", "DRS_LIBRARY_MESSAGES", "DRS_QUIET_LIBRARIES")
+    }
     env["OMP_NUM_THREADS"] = "1"
-    cmd = [sys.executable, "-c", "import sys; from drs_torchrl.bench import main; sys.exit(main())",
-           "--raw-steps", "50", "--collect-steps", "64", "--learn-frames", "64", "--learning-starts", "256", "--algos", "sac_cpu",
-           "--collect-collectors", "inproc", "--collectors", "inproc", "--precisions", "fp32", "--stage-sizes",
-           "--no-plain", "--no-compile", "--out", str(tmp_path / "bench")]
+    cmd = [
+        sys.executable,
+        "-c",
+        "import sys; from drs_torchrl.bench import main; sys.exit(main())",
+        "--raw-steps",
+        "50",
+        "--collect-steps",
+        "64",
+        "--learn-frames",
+        "64",
+        "--learning-starts",
+        "256",
+        "--algos",
+        "sac_cpu",
+        "--collect-collectors",
+        "inproc",
+        "--collectors",
+        "inproc",
+        "--precisions",
+        "fp32",
+        "--stage-sizes",
+        "--no-plain",
+        "--no-compile",
+        "--out",
+        str(tmp_path / "bench"),
+    ]
     out = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=600)
     assert out.returncode == 0, out.stderr[-2000:]
     console = out.stdout + out.stderr
     assert "raw simulator" in console and (tmp_path / "bench" / "bench.json").exists()
-    for noise in ("UserWarning", "Requested to use render device", "No initial pose set", "Initialized LazyTensorStorage"):
+    for noise in (
+        "UserWarning",
+        "Requested to use render device",
+        "No initial pose set",
+        "Initialized LazyTensorStorage",
+    ):
         assert noise not in console, (noise, console[-2000:])

@@ -1,4 +1,5 @@
 """drs-learn and drs-reuse through their console scripts, on real ManiSkill at tiny budgets."""
+
 import csv
 import json
 import os
@@ -15,9 +16,16 @@ pytestmark = [pytest.mark.sim, pytest.mark.slow]
 
 BIN = Path(sys.executable).parent
 TINY = [
-    "total_frames=640", "algo.learning_starts=256", "algo.batch_size=64", "algo.hidden=[32,32]",
-    "logger.interval=256", "eval.interval=512", "eval.episodes=1", "checkpoint_interval=512",
-    "logger.progress_bar=false", "logger.tensorboard=false",
+    "total_frames=640",
+    "algo.learning_starts=256",
+    "algo.batch_size=64",
+    "algo.hidden=[32,32]",
+    "logger.interval=256",
+    "eval.interval=512",
+    "eval.episodes=1",
+    "checkpoint_interval=512",
+    "logger.progress_bar=false",
+    "logger.tensorboard=false",
 ]
 DISC = ["reward.disc.batch_size=32"]
 
@@ -31,8 +39,16 @@ def run(cmd, *args, cwd):
 def learned(tmp_path_factory):
     d = tmp_path_factory.mktemp("learn")
     # a wide placement threshold makes "placed" trajectories likely even under random actions
-    p = run("drs-learn", *TINY, *DISC, "logger.tensorboard=true", "+env.variant_overrides.goal_thresh=0.08",
-            f"hydra.run.dir={d}", "seed=1", cwd=d)
+    p = run(
+        "drs-learn",
+        *TINY,
+        *DISC,
+        "logger.tensorboard=true",
+        "+env.variant_overrides.goal_thresh=0.08",
+        f"hydra.run.dir={d}",
+        "seed=1",
+        cwd=d,
+    )
     assert p.returncode == 0, p.stderr[-3000:]
     return d
 
@@ -44,13 +60,25 @@ def test_learn_writes_reward_policy_logs_and_config(learned):
     assert list((learned / "tb").glob("events.*"))
     rows = list(csv.DictReader((learned / "train.csv").open()))
     assert int(rows[-1]["frames"].split(".")[0]) >= 640
-    for col in ("success_rate", "reach_stage_1", "reach_stage_3", "env_steps_per_s", "updates_per_s", "stage_buffer_0", "reward_mean"):
+    for col in (
+        "success_rate",
+        "reach_stage_1",
+        "reach_stage_3",
+        "env_steps_per_s",
+        "updates_per_s",
+        "stage_buffer_0",
+        "reward_mean",
+    ):
         assert col in rows[-1], col
     timed = [r for r in rows if r.get("frac_time_waiting_for_data")]  # TorchRL timeit's drs/collect and drs/update
-    assert timed and all(0 < float(r["frac_time_waiting_for_data"]) <= 1 and float(r["collect_steps_per_s"]) > 0 for r in timed)
+    assert timed and all(
+        0 < float(r["frac_time_waiting_for_data"]) <= 1 and float(r["collect_steps_per_s"]) > 0 for r in timed
+    )
     summary = json.loads((learned / "summary.json").read_text())
     assert summary["frames"] >= 640 and summary["updates"] > 0
-    head = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=Path(__file__).parent).stdout.strip()
+    head = subprocess.run(
+        ["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=Path(__file__).parent
+    ).stdout.strip()
     assert summary["code"]["commit"] == (head or None)  # the code behind the run (None outside a git checkout)
     eps = summary["stage_buffer_episodes"]
     assert sum(eps) >= 10
@@ -79,11 +107,25 @@ def test_reuse_loads_the_learned_reward_on_the_test_variant_and_trains(learned, 
 
 
 def test_compare_and_plot_read_real_runs(learned, tmp_path):
-    p = run("drs-compare", str(learned), str(learned), "--group-by", "phase", "env.split", "--out", str(tmp_path), cwd=tmp_path)
+    p = run(
+        "drs-compare",
+        str(learned),
+        str(learned),
+        "--group-by",
+        "phase",
+        "env.split",
+        "--out",
+        str(tmp_path),
+        cwd=tmp_path,
+    )
     assert p.returncode == 0, p.stderr[-3000:]
     rows = list(csv.DictReader((tmp_path / "compare.csv").open()))
     ev = [r for r in rows if r["source"] == "eval" and r["metric"] == "success_rate"]
-    assert ev and {r["group"] for r in rows} == {"learn train"} and all(r["n"] == "2" and float(r["std"]) == 0.0 for r in ev)
+    assert (
+        ev
+        and {r["group"] for r in rows} == {"learn train"}
+        and all(r["n"] == "2" and float(r["std"]) == 0.0 for r in ev)
+    )
     assert "| learn train | 2 (1, 1) |" in (tmp_path / "compare.md").read_text()
     assert (tmp_path / "compare.png").stat().st_size > 10_000
     p = run("drs-plot", str(learned), "--out", str(tmp_path / "progress.png"), cwd=tmp_path)
@@ -109,7 +151,13 @@ def test_reuse_rejects_a_checkpoint_that_does_not_fit(learned, tmp_path):
     r = DrSReward.from_checkpoint(learned / "checkpoints" / "reward.pt")
     wrong = DrSReward(3, ["observation"], {"observation": 40}, metadata={"family": "pick_cube"})
     wrong.save(tmp_path / "wrong.pt")
-    p = run("drs-reuse", *TINY, f"reward.checkpoint={tmp_path / 'wrong.pt'}", f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path)
+    p = run(
+        "drs-reuse",
+        *TINY,
+        f"reward.checkpoint={tmp_path / 'wrong.pt'}",
+        f"hydra.run.dir={tmp_path / 'run'}",
+        cwd=tmp_path,
+    )
     assert p.returncode == 2
     assert "size 40" in p.stderr and "size 42" in p.stderr
     assert not (tmp_path / "run" / "checkpoints" / "policy.pt").exists()
@@ -141,8 +189,16 @@ def test_reuse_without_checkpoint_and_bad_values_fail_clearly(tmp_path, cli):
 
 
 def test_learn_with_two_cpu_envs(tmp_path):
-    p = run("drs-learn", *TINY, *DISC, "env.num_envs=2", "total_frames=384", "algo.learning_starts=128",
-            f"hydra.run.dir={tmp_path}", cwd=tmp_path)
+    p = run(
+        "drs-learn",
+        *TINY,
+        *DISC,
+        "env.num_envs=2",
+        "total_frames=384",
+        "algo.learning_starts=128",
+        f"hydra.run.dir={tmp_path}",
+        cwd=tmp_path,
+    )
     assert p.returncode == 0, p.stderr[-3000:]
     summary = json.loads((tmp_path / "summary.json").read_text())
     # 384 steps over two envs = 192 per env: three finished 50-step episodes each (unless one
@@ -156,8 +212,14 @@ def test_learn_with_two_cpu_envs(tmp_path):
 
 def test_no_vulkan_device_says_how_to_install_one(tmp_path):
     env = dict(os.environ, PYTHONWARNINGS="ignore", VK_ICD_FILENAMES=str(tmp_path / "no_driver.json"))
-    p = subprocess.run([str(BIN / "drs-learn"), *TINY, f"hydra.run.dir={tmp_path / 'run'}"], cwd=tmp_path, env=env,
-                       capture_output=True, text=True, timeout=300)
+    p = subprocess.run(
+        [str(BIN / "drs-learn"), *TINY, f"hydra.run.dir={tmp_path / 'run'}"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert p.returncode == 2
     assert "No usable Vulkan device" in p.stderr and "mesa-vulkan-drivers" in p.stderr
     p = subprocess.run([str(BIN / "drs-doctor")], env=env, capture_output=True, text=True, timeout=300)
@@ -169,7 +231,14 @@ def test_cuda_requested_without_cuda(tmp_path):
         pytest.skip("this machine has CUDA")
     p = run("drs-learn", *TINY, "device=cuda", f"hydra.run.dir={tmp_path / 'a'}", cwd=tmp_path)
     assert p.returncode == 2 and "CUDA is not available" in p.stderr
-    p = run("drs-learn", *TINY, "env.sim_backend=physx_cuda", "env.num_envs=16", f"hydra.run.dir={tmp_path / 'b'}", cwd=tmp_path)
+    p = run(
+        "drs-learn",
+        *TINY,
+        "env.sim_backend=physx_cuda",
+        "env.num_envs=16",
+        f"hydra.run.dir={tmp_path / 'b'}",
+        cwd=tmp_path,
+    )
     assert p.returncode == 2 and "CUDA is not available" in p.stderr
 
 
@@ -177,15 +246,29 @@ def test_a_reward_on_the_task_state_only_learns_and_is_reused(tmp_path):
     """reward.in_keys=[task_observation,stage_indicators]: the env writes the task state by itself (saved in
     config.yaml), the discriminators read no joint positions or velocities, and drs-reuse turns it on again."""
     learn, reuse = tmp_path / "learn", tmp_path / "reuse"
-    p = run("drs-learn", *TINY, *DISC, "reward.in_keys=[task_observation,stage_indicators]", f"hydra.run.dir={learn}", cwd=tmp_path)
+    p = run(
+        "drs-learn",
+        *TINY,
+        *DISC,
+        "reward.in_keys=[task_observation,stage_indicators]",
+        f"hydra.run.dir={learn}",
+        cwd=tmp_path,
+    )
     assert p.returncode == 0, p.stderr[-3000:]
     from omegaconf import OmegaConf
 
     assert OmegaConf.load(learn / "config.yaml").env.task_observation is True
     reward = DrSReward.from_checkpoint(learn / "checkpoints" / "reward.pt")
     assert reward.in_shapes == {"task_observation": 19, "stage_indicators": 3}
-    p = run("drs-reuse", *TINY, "env.split=test", "total_frames=384", f"reward.checkpoint={learn / 'checkpoints' / 'reward.pt'}",
-            f"hydra.run.dir={reuse}", cwd=tmp_path)
+    p = run(
+        "drs-reuse",
+        *TINY,
+        "env.split=test",
+        "total_frames=384",
+        f"reward.checkpoint={learn / 'checkpoints' / 'reward.pt'}",
+        f"hydra.run.dir={reuse}",
+        cwd=tmp_path,
+    )
     assert p.returncode == 0, p.stderr[-3000:]
     assert OmegaConf.load(reuse / "config.yaml").env.task_observation is True
     rows = [x for x in csv.DictReader((reuse / "train.csv").open()) if x.get("reward_max")]

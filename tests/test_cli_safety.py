@@ -1,5 +1,6 @@
 """Nothing lost, nothing silently wrong (issue 16): a closed pipe, interrupts, an existing run
 directory and a value of the wrong type, through the real console scripts on real ManiSkill."""
+
 import os
 import signal
 import subprocess
@@ -13,12 +14,24 @@ pytestmark = [pytest.mark.sim, pytest.mark.slow]
 
 BIN = Path(sys.executable).parent
 TINY = [
-    "total_frames=640", "algo.learning_starts=256", "algo.batch_size=64", "algo.hidden=[32,32]",
-    "reward.disc.batch_size=32", "logger.interval=256", "eval.interval=512", "eval.episodes=1",
-    "checkpoint_interval=512", "logger.tensorboard=false",
+    "total_frames=640",
+    "algo.learning_starts=256",
+    "algo.batch_size=64",
+    "algo.hidden=[32,32]",
+    "reward.disc.batch_size=32",
+    "logger.interval=256",
+    "eval.interval=512",
+    "eval.episodes=1",
+    "checkpoint_interval=512",
+    "logger.tensorboard=false",
 ]
-LIBRARY_CHATTER = ("Requested to use render device", "No initial pose set", "Initialized LazyTensorStorage",
-                   "init_random_frames", "screw plan failed")
+LIBRARY_CHATTER = (
+    "Requested to use render device",
+    "No initial pose set",
+    "Initialized LazyTensorStorage",
+    "init_random_frames",
+    "screw plan failed",
+)
 
 
 def run(*args, cwd, **kw):
@@ -39,8 +52,14 @@ def test_console_shows_no_library_chatter_unless_asked(finished, tmp_path):
     assert "learner precision" in out and "env steps" in out
     for msg in LIBRARY_CHATTER:
         assert msg not in out, msg
-    p = run(*TINY, "total_frames=320", "logger.progress_bar=false", "logger.library_messages=true",
-            f"hydra.run.dir={tmp_path / 'loud'}", cwd=tmp_path)
+    p = run(
+        *TINY,
+        "total_frames=320",
+        "logger.progress_bar=false",
+        "logger.library_messages=true",
+        f"hydra.run.dir={tmp_path / 'loud'}",
+        cwd=tmp_path,
+    )
     assert p.returncode == 0, p.stderr[-2000:]
     assert "Requested to use render device" in p.stdout + p.stderr
 
@@ -68,11 +87,14 @@ def test_overwrite_true_replaces_the_run(finished, tmp_path):
     assert not list(target.glob(".hydra-new-*"))
 
 
-@pytest.mark.parametrize("override,message", [
-    ("total_frames=abc", "total_frames must be an integer, got 'abc'"),
-    ("algo.gamma=high", "algo.gamma must be a number, got 'high'"),
-    ("eval.episode_seed=first", "eval.episode_seed must be an integer or null, got 'first'"),
-])
+@pytest.mark.parametrize(
+    "override,message",
+    [
+        ("total_frames=abc", "total_frames must be an integer, got 'abc'"),
+        ("algo.gamma=high", "algo.gamma must be a number, got 'high'"),
+        ("eval.episode_seed=first", "eval.episode_seed must be an integer or null, got 'first'"),
+    ],
+)
 def test_a_value_of_the_wrong_type_is_one_line_and_the_fix(tmp_path, override, message):
     p = run(override, f"hydra.run.dir={tmp_path / 'r'}", cwd=tmp_path)
     assert p.returncode == 2
@@ -95,8 +117,13 @@ def _wait_for_progress(run_dir: Path, proc, timeout=300):
 def test_interrupted_run_saves_and_exits_non_zero_even_with_its_pipe_closed(tmp_path, sig, code):
     d = tmp_path / "r"
     args = [*TINY, "total_frames=200000", "logger.interval=128", "logger.progress_bar=false", f"hydra.run.dir={d}"]
-    proc = subprocess.Popen([str(BIN / "drs-learn"), *args], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            env=dict(os.environ))
+    proc = subprocess.Popen(
+        [str(BIN / "drs-learn"), *args],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env=dict(os.environ),
+    )
     if sig == signal.SIGINT:  # "drs-learn ... | tee log" and Ctrl-C: tee is gone before the run writes again
         proc.stdout.close()
         proc.stderr.close()
@@ -118,15 +145,23 @@ def test_interrupted_run_saves_and_exits_non_zero_even_with_its_pipe_closed(tmp_
 def test_drs_demos_console_shows_no_library_chatter_unless_asked(tmp_path):
     """``drs-demos`` (the motion planner through ManiSkill) filters the same chatter as ``drs-learn``."""
     cmd = [str(BIN / "drs-demos"), "--family", "pick_cube", "--num", "1"]
-    p = subprocess.run([*cmd, "--out", str(tmp_path / "quiet.demos")], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    p = subprocess.run(
+        [*cmd, "--out", str(tmp_path / "quiet.demos")], cwd=tmp_path, capture_output=True, text=True, timeout=600
+    )
     assert p.returncode == 0, p.stderr[-3000:]
     out = p.stdout + p.stderr
     assert "1 demonstrations" in out
     for msg in LIBRARY_CHATTER:
         assert msg not in out, msg
     env = {**os.environ, "DRS_LIBRARY_MESSAGES": "1"}
-    p = subprocess.run([*cmd, "--out", str(tmp_path / "loud.demos")], cwd=tmp_path, capture_output=True, text=True,
-                       timeout=600, env=env)
+    p = subprocess.run(
+        [*cmd, "--out", str(tmp_path / "loud.demos")],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=env,
+    )
     assert p.returncode == 0, p.stderr[-3000:]
     assert "Requested to use render device" in p.stdout + p.stderr
 
@@ -138,26 +173,47 @@ def test_a_full_disk_while_saving_is_one_line_and_the_last_state_resumes(tmp_pat
     small, out = tmp_path / "small", tmp_path / "out"
     small.mkdir()
     out.mkdir()
-    args = ["total_frames=4096", "algo.learning_starts=4096", "algo.batch_size=32", "algo.hidden=[32,32]",
-            "eval.episodes=0", "checkpoint_interval=1024", "logger.interval=512", "stop_at_success=null",
-            "logger.progress_bar=false", "logger.tensorboard=false", f"hydra.run.dir={small / 'run'}"]
+    args = [
+        "total_frames=4096",
+        "algo.learning_starts=4096",
+        "algo.batch_size=32",
+        "algo.hidden=[32,32]",
+        "eval.episodes=0",
+        "checkpoint_interval=1024",
+        "logger.interval=512",
+        "stop_at_success=null",
+        "logger.progress_bar=false",
+        "logger.tensorboard=false",
+        f"hydra.run.dir={small / 'run'}",
+    ]
     ns = ["unshare", "--mount"] if os.geteuid() == 0 else ["unshare", "--user", "--map-root-user", "--mount"]
-    script = (f"mount -t tmpfs -o size=3m tmpfs {small} || exit 99; {BIN / 'drs-learn'} {' '.join(args)}; "
-              f"rc=$?; cp -a {small / 'run'} {out}/; exit $rc")
+    script = (
+        f"mount -t tmpfs -o size=3m tmpfs {small} || exit 99; {BIN / 'drs-learn'} {' '.join(args)}; "
+        f"rc=$?; cp -a {small / 'run'} {out}/; exit $rc"
+    )
     p = subprocess.run([*ns, "sh", "-c", script], cwd=tmp_path, capture_output=True, text=True, timeout=600)
     if p.returncode == 99 or "unshare:" in p.stderr:
         pytest.skip(f"cannot mount a small filesystem here: {p.stderr.strip()[:200]}")
     assert p.returncode == 2, p.stderr[-3000:]
     errors = [ln for ln in p.stderr.splitlines() if "error" in ln.lower()]
     assert len(errors) == 1 and "Traceback" not in p.stderr, p.stderr[-3000:]
-    assert f"{small / 'run' / 'checkpoints'}: it needs about" in errors[0] and "MiB are free; free some space" in errors[0]
+    assert (
+        f"{small / 'run' / 'checkpoints'}: it needs about" in errors[0] and "MiB are free; free some space" in errors[0]
+    )
     assert f"the training state at 2048 env steps is kept: continue with drs-learn resume={small / 'run'}" in errors[0]
     run_dir = out / "run"
     assert (run_dir / "checkpoints" / "state" / "COMPLETE").read_text() == "2048"
-    assert not list((run_dir / "checkpoints").glob("state.tmp-*")) and not (run_dir / "checkpoints" / "state.old").exists()
+    assert (
+        not list((run_dir / "checkpoints").glob("state.tmp-*")) and not (run_dir / "checkpoints" / "state.old").exists()
+    )
     assert not (run_dir / "summary.json").exists()  # the run did not finish, and says nothing else
-    p = subprocess.run([str(BIN / "drs-learn"), f"resume={run_dir}", "total_frames=2304"], cwd=tmp_path, capture_output=True,
-                       text=True, timeout=600)  # the state resumes (here, with room)
+    p = subprocess.run(
+        [str(BIN / "drs-learn"), f"resume={run_dir}", "total_frames=2304"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )  # the state resumes (here, with room)
     assert p.returncode == 0, p.stderr[-2000:]
     assert "2304 env steps" in p.stdout
 
@@ -179,7 +235,9 @@ def test_resume_of_a_damaged_config_names_the_file_and_its_copy(cli, tmp_path):
 
 
 def test_an_env_id_gymnasium_does_not_know_is_one_line(cli, tmp_path):
-    code, err = cli("learn", "env=custom", "env.family=mine", "env.env_id=PushCub-v1", f"hydra.run.dir={tmp_path / 'r'}")
+    code, err = cli(
+        "learn", "env=custom", "env.family=mine", "env.env_id=PushCub-v1", f"hydra.run.dir={tmp_path / 'r'}"
+    )
     assert code == 2 and "Traceback" not in err
     assert "drs-learn: error: env.env_id=PushCub-v1: gymnasium: Environment `PushCub` doesn't exist" in err
     assert "PushCube" in err
@@ -193,7 +251,10 @@ def test_drs_eval_refuses_a_video_path_that_is_a_file_before_any_episode(tmp_pat
     with pytest.raises(SystemExit) as e:
         main([str(tmp_path), "--video", str(tmp_path / "v")])
     assert e.value.code == 2
-    assert capsys.readouterr().err == f"drs-eval: error: --video {tmp_path / 'v'} is a file, not a folder; give a folder (it is made if missing)\n"
+    assert (
+        capsys.readouterr().err
+        == f"drs-eval: error: --video {tmp_path / 'v'} is a file, not a folder; give a folder (it is made if missing)\n"
+    )
 
 
 def test_drs_demos_never_replaces_a_folder_that_is_not_demonstrations(tmp_path, capsys):
@@ -208,15 +269,27 @@ def test_drs_demos_never_replaces_a_folder_that_is_not_demonstrations(tmp_path, 
 def test_drs_bench_collector_workers_filter_library_messages(tmp_path):
     """The background collector's worker process applies the console filter (ManiSkill's render-device and
     initial-pose warnings came from there); DRS_LIBRARY_MESSAGES=1 shows them again."""
-    code = ("import sys; from drs_torchrl.console import quiet_libraries, library_messages_requested\n"
-            "library_messages_requested() or quiet_libraries()\n"
-            "from drs_torchrl.bench import bench_collect; from drs_torchrl.tasks import get_family\n"
-            "print(bench_collect(get_family('pick_cube'), 64, 'background') > 0)")
-    env = {k: v for k, v in os.environ.items() if k not in ("RL_WARNINGS", "DRS_LIBRARY_MESSAGES", "DRS_QUIET_LIBRARIES")}
-    quiet = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=tmp_path, timeout=600)
+    code = (
+        "import sys; from drs_torchrl.console import quiet_libraries, library_messages_requested\n"
+        "library_messages_requested() or quiet_libraries()\n"
+        "from drs_torchrl.bench import bench_collect; from drs_torchrl.tasks import get_family\n"
+        "print(bench_collect(get_family('pick_cube'), 64, 'background') > 0)"
+    )
+    env = {
+        k: v for k, v in os.environ.items() if k not in ("RL_WARNINGS", "DRS_LIBRARY_MESSAGES", "DRS_QUIET_LIBRARIES")
+    }
+    quiet = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=tmp_path, timeout=600
+    )
     assert quiet.returncode == 0 and "True" in quiet.stdout, quiet.stderr[-3000:]
-    loud = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=600,
-                          env={**env, "DRS_LIBRARY_MESSAGES": "1"})
+    loud = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        timeout=600,
+        env={**env, "DRS_LIBRARY_MESSAGES": "1"},
+    )
     assert loud.returncode == 0, loud.stderr[-3000:]
     assert "Requested to use render device" in loud.stdout + loud.stderr
     for msg in LIBRARY_CHATTER:

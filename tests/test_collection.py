@@ -1,5 +1,6 @@
 """The background collector (a TorchRL AsyncCollector process beside the learner, issue 4):
 the worker acts with the learner's current actor, the UTD stays exact, and runs finish and save."""
+
 import json
 
 import pytest
@@ -13,8 +14,13 @@ pytestmark = [pytest.mark.sim]
 
 BACKGROUND = "algo.collector._target_=torchrl.collectors.AsyncCollector"
 TINY = [
-    "algo.batch_size=64", "algo.hidden=[32,32]", "reward.disc.batch_size=32", "eval.episodes=0",
-    "logger.progress_bar=false", "logger.tensorboard=false", "checkpoint_interval=1000000",
+    "algo.batch_size=64",
+    "algo.hidden=[32,32]",
+    "reward.disc.batch_size=32",
+    "eval.episodes=0",
+    "logger.progress_bar=false",
+    "logger.tensorboard=false",
+    "checkpoint_interval=1000000",
 ]
 
 
@@ -37,7 +43,7 @@ def test_background_worker_acts_with_the_updated_actor(tmp_path):
             last.weight.zero_()
             last.bias.zero_()
             last.bias[: last.bias.numel() // 2] = 20.0  # loc: tanh(20) = 1
-            last.bias[last.bias.numel() // 2:] = -20.0  # scale: at its lower bound
+            last.bias[last.bias.numel() // 2 :] = -20.0  # scale: at its lower bound
         collector.update_policy_weights_()
         next(it)  # may have been collected before the sync (one batch of policy lag)
         after = next(it)
@@ -48,8 +54,11 @@ def test_background_worker_acts_with_the_updated_actor(tmp_path):
 
 
 def test_background_run_keeps_utd_exact_and_saves(tmp_path):
-    tr = Trainer(config("total_frames=768", "algo.learning_starts=256", "algo.frames_per_batch=64", "logger.interval=256"),
-                 "learn", tmp_path)
+    tr = Trainer(
+        config("total_frames=768", "algo.learning_starts=256", "algo.frames_per_batch=64", "logger.interval=256"),
+        "learn",
+        tmp_path,
+    )
     summary = tr.run()
     assert summary["frames"] == 768
     # the config's UTD (sac_cpu: 0.5) for every 64-step batch that ends at or after learning_starts (256, 320, ..., 768)

@@ -3,6 +3,7 @@
 The aggregation is checked on hand-written run folders (CSV + config.yaml) whose means and stds
 are known; ``test_cli.py`` runs drs-compare on real drs-learn output.
 """
+
 import csv
 from pathlib import Path
 
@@ -15,7 +16,9 @@ from drs_torchrl.comparison import CompareError, compare, group_style, main
 def make_run(root: Path, name: str, reward: str, seed: int, success: list[float], reach1: list[float], interval=1000):
     d = root / name
     d.mkdir(parents=True)
-    (d / "config.yaml").write_text(f"env:\n  family: pick_cube\n  split: test\nreward:\n  name: {reward}\nseed: {seed}\nphase: reuse\n")
+    (d / "config.yaml").write_text(
+        f"env:\n  family: pick_cube\n  split: test\nreward:\n  name: {reward}\nseed: {seed}\nphase: reuse\n"
+    )
     steps = [interval * (i + 1) for i in range(len(success))]
     with (d / "eval.csv").open("w", newline="") as f:
         w = csv.writer(f)
@@ -53,13 +56,20 @@ def test_groups_by_reward_and_averages_over_seeds(tmp_path):
     # the earlier stages get their own curves, from eval and from training episodes; the last
     # stage is success, drawn once
     metrics = {(r["source"], r["metric"]) for r in rows_of(paths["csv"])}
-    assert metrics == {("eval", "success_rate"), ("eval", "reach_stage_1"),
-                       ("train", "success_rate"), ("train", "reach_stage_1")}
+    assert metrics == {
+        ("eval", "success_rate"),
+        ("eval", "reach_stage_1"),
+        ("train", "success_rate"),
+        ("train", "reach_stage_1"),
+    }
 
     md = paths["md"].read_text()
     drs_line = next(line for line in md.splitlines() if line.startswith("| drs "))
     # final success per run, its mean +- std, and the shortest run's length
-    assert "0.80, 0.60, 0.60" in drs_line and f"{np.mean([0.8, 0.6, 0.6]):.2f} +- {np.std([0.8, 0.6, 0.6]):.2f}" in drs_line
+    assert (
+        "0.80, 0.60, 0.60" in drs_line
+        and f"{np.mean([0.8, 0.6, 0.6]):.2f} +- {np.std([0.8, 0.6, 0.6]):.2f}" in drs_line
+    )
     assert "| 2000 |" in drs_line and "3 (0, 1, 2)" in drs_line
 
 
@@ -69,11 +79,12 @@ def test_auc_and_first_step_past_half_have_known_values(tmp_path):
     b = make_run(tmp_path, "b", "drs", 1, [0.0, 0.8, 0.8], [0, 0, 0])
     c = make_run(tmp_path, "c", "sparse", 0, [0.2, 0.2, 0.2, 0.2], [0, 0, 0, 0])
     from drs_torchrl.comparison import group_runs, load_run, summary_rows
+
     rows = {r["group"]: r for r in summary_rows(group_runs([load_run(x) for x in (a, b, c)]))}
     # every AUC runs to the shortest evaluated run of the comparison (3k), from the first evaluation (1k)
     assert rows["drs"]["auc_horizon"] == 3000
-    auc_a = ((0.0 + 0.4) / 2 + (0.4 + 0.8) / 2) / 2       # 0.4
-    auc_b = ((0.0 + 0.8) / 2 + (0.8 + 0.8) / 2) / 2       # 0.6
+    auc_a = ((0.0 + 0.4) / 2 + (0.4 + 0.8) / 2) / 2  # 0.4
+    auc_b = ((0.0 + 0.8) / 2 + (0.8 + 0.8) / 2) / 2  # 0.6
     np.testing.assert_allclose(rows["drs"]["auc_mean"], np.mean([auc_a, auc_b]))
     np.testing.assert_allclose(rows["drs"]["auc_std"], np.std([auc_a, auc_b]))
     np.testing.assert_allclose(rows["sparse"]["auc_mean"], 0.2)
@@ -93,6 +104,7 @@ def test_a_run_with_one_evaluation_does_not_set_the_auc_horizon(tmp_path):
     b = make_run(tmp_path, "b", "sparse", 0, [0.2, 0.2, 0.2], [0, 0, 0])
     o = make_run(tmp_path, "o", "oril", 0, [0.0], [0.0])
     from drs_torchrl.comparison import group_runs, load_run, summary_rows
+
     rows = {r["group"]: r for r in summary_rows(group_runs([load_run(x) for x in (a, b, o)]))}
     assert rows["drs"]["auc_horizon"] == 3000
     np.testing.assert_allclose(rows["drs"]["auc_mean"], 0.4)
@@ -103,23 +115,28 @@ def test_a_run_with_one_evaluation_does_not_set_the_auc_horizon(tmp_path):
 
 
 def test_training_table_gives_the_first_step_each_stage_passes_half(tmp_path):
-    a = make_run(tmp_path, "a", "drs", 0, [0.0, 0.4, 1.0], [0.2, 0.6, 1.0])   # train: stage 1 = reach1, success = y / 2
+    a = make_run(tmp_path, "a", "drs", 0, [0.0, 0.4, 1.0], [0.2, 0.6, 1.0])  # train: stage 1 = reach1, success = y / 2
     b = make_run(tmp_path, "b", "drs", 1, [0.0, 0.0, 1.0], [0.4, 0.8, 1.0])
     md = compare([a, b], tmp_path / "out")["md"].read_text()
     # stage 1: mean 0.3, 0.7, 1.0 -> 2k; success: mean 0, 0.1, 0.5 -> 3k
     assert "| group | reached stage 1 (is_grasped) | success |" in md and "| drs | 2k | 3k |" in md
     # runs with other stages (an ablation's env.stages) in the same table: the columns keep their numbers only
     c = make_run(tmp_path, "c", "drs", 2, [0.0, 0.0, 1.0], [0.4, 0.8, 1.0])
-    (c / "config.yaml").write_text((c / "config.yaml").read_text().replace("  split: test\n", "  split: test\n  stages: [is_obj_placed, success]\n"))
+    (c / "config.yaml").write_text(
+        (c / "config.yaml")
+        .read_text()
+        .replace("  split: test\n", "  split: test\n  stages: [is_obj_placed, success]\n")
+    )
     md = compare([a, c], tmp_path / "out2")["md"].read_text()
     assert "| group | reached stage 1 | success |" in md
 
 
 def test_first_step_counts_only_steps_every_seed_reached(tmp_path):
     a = make_run(tmp_path, "a", "drs", 0, [0.0, 0.2, 1.0], [0, 0, 0])
-    b = make_run(tmp_path, "b", "drs", 1, [0.0, 0.2], [0, 0])   # interrupted before 3k
+    b = make_run(tmp_path, "b", "drs", 1, [0.0, 0.2], [0, 0])  # interrupted before 3k
     from drs_torchrl.comparison import first_step_over, load_run
-    assert first_step_over([load_run(a), load_run(b)]) is None   # a alone passes at 3k: not the group's mean
+
+    assert first_step_over([load_run(a), load_run(b)]) is None  # a alone passes at 3k: not the group's mean
     assert first_step_over([load_run(a)]) == 3000
 
 
@@ -128,7 +145,11 @@ def test_a_step_logged_twice_counts_once(tmp_path):
     with (a / "eval.csv").open("a", newline="") as f:  # a resumed run repeats its last step
         csv.writer(f).writerow([2000, 10, 0.6, 0.6, 0.6])
     b = make_run(tmp_path, "b", "drs", 1, [0.0, 0.2], [0.0, 0.2])
-    rows = [r for r in rows_of(compare([a, b], tmp_path / "out")["csv"]) if r["source"] == "eval" and r["metric"] == "success_rate"]
+    rows = [
+        r
+        for r in rows_of(compare([a, b], tmp_path / "out")["csv"])
+        if r["source"] == "eval" and r["metric"] == "success_rate"
+    ]
     assert [(int(r["step"]), int(r["n"])) for r in rows] == [(1000, 2), (2000, 2)]
     np.testing.assert_allclose(float(rows[1]["mean"]), 0.4)  # (0.6 + 0.2) / 2: the later row of a
 

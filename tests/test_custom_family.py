@@ -1,4 +1,5 @@
 """A task family defined entirely in config (env=custom): built, checked against the env, learned and reused."""
+
 import subprocess
 import sys
 from pathlib import Path
@@ -12,9 +13,17 @@ from drs_torchrl.transforms import DrSReward
 BIN = Path(sys.executable).parent
 POKE = ["env=custom", "env.family=poke_cube_test", "env.env_id=PokeCube-v1", "env.stage_keys=[is_peg_grasped,success]"]
 TINY = [
-    "total_frames=320", "algo.learning_starts=128", "algo.batch_size=32", "algo.hidden=[16,16]",
-    "reward.disc.batch_size=16", "logger.interval=128", "eval.interval=100000", "eval.episodes=1",
-    "checkpoint_interval=100000", "logger.tensorboard=false", "logger.progress_bar=false",
+    "total_frames=320",
+    "algo.learning_starts=128",
+    "algo.batch_size=32",
+    "algo.hidden=[16,16]",
+    "reward.disc.batch_size=16",
+    "logger.interval=128",
+    "eval.interval=100000",
+    "eval.episodes=1",
+    "checkpoint_interval=100000",
+    "logger.tensorboard=false",
+    "logger.progress_bar=false",
 ]
 
 
@@ -48,7 +57,14 @@ def run(cmd, *args, cwd):
 @pytest.mark.sim
 @pytest.mark.slow
 def test_a_stage_key_the_env_does_not_report_is_named(tmp_path):
-    p = run("drs-learn", *POKE[:3], "env.stage_keys=[is_grasped,success]", *TINY, f"hydra.run.dir={tmp_path / 'r'}", cwd=tmp_path)
+    p = run(
+        "drs-learn",
+        *POKE[:3],
+        "env.stage_keys=[is_grasped,success]",
+        *TINY,
+        f"hydra.run.dir={tmp_path / 'r'}",
+        cwd=tmp_path,
+    )
     assert p.returncode == 2
     assert "does not report info entries ['is_grasped']" in p.stderr and "is_peg_grasped" in p.stderr
     assert "Traceback" not in p.stderr
@@ -63,7 +79,15 @@ def test_config_family_learns_a_reward_and_reuses_it_on_its_test_variant(tmp_pat
     reward = DrSReward.from_checkpoint(learn / "checkpoints" / "reward.pt")
     assert reward.num_stages == 2 and reward.metadata["family"] == "poke_cube_test"
     assert reward.metadata["env_id"] == "PokeCube-v1"
-    p = run("drs-reuse", *POKE, *TINY, "env.split=test", "reward=drs", f"reward.checkpoint={learn / 'checkpoints' / 'reward.pt'}",
-            f"hydra.run.dir={tmp_path / 'reuse'}", cwd=tmp_path)
+    p = run(
+        "drs-reuse",
+        *POKE,
+        *TINY,
+        "env.split=test",
+        "reward=drs",
+        f"reward.checkpoint={learn / 'checkpoints' / 'reward.pt'}",
+        f"hydra.run.dir={tmp_path / 'reuse'}",
+        cwd=tmp_path,
+    )
     assert p.returncode == 0, p.stderr[-3000:]
     assert (tmp_path / "reuse" / "checkpoints" / "policy.pt").is_file()

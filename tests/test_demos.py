@@ -1,4 +1,5 @@
 """Demonstrations: recorded with ManiSkill's motion planner, saved, loaded, checked against the task."""
+
 import json
 
 import pytest
@@ -78,10 +79,25 @@ def maniskill_h5(tmp_path_factory):
 
     torch.set_num_threads(1)
     out = tmp_path_factory.mktemp("h5")
-    env = gym.make("PickCubeSized-v1", obs_mode="state", control_mode="pd_joint_pos", num_envs=1,
-                   sim_backend="physx_cpu", render_mode=None, max_episode_steps=300, cube_half_size=0.02)
-    env = RecordEpisode(env, str(out), trajectory_name="pick", save_trajectory=True, save_video=False,
-                        save_on_reset=False, source_type="motionplanning")
+    env = gym.make(
+        "PickCubeSized-v1",
+        obs_mode="state",
+        control_mode="pd_joint_pos",
+        num_envs=1,
+        sim_backend="physx_cpu",
+        render_mode=None,
+        max_episode_steps=300,
+        cube_half_size=0.02,
+    )
+    env = RecordEpisode(
+        env,
+        str(out),
+        trajectory_name="pick",
+        save_trajectory=True,
+        save_video=False,
+        save_on_reset=False,
+        source_type="motionplanning",
+    )
     for seed in range(H5_EPISODES):
         solve(env, seed=seed)
         env.flush_trajectory()
@@ -120,7 +136,9 @@ def test_maniskill_h5_converts_to_demos_matching_the_recording(maniskill_h5, pic
     check_demos(meta, pick_cube, {"observation": 42, "stage_indicators": 3})
 
     out = tmp_path / "from_h5.demos"
-    assert main(["--from-h5", str(maniskill_h5), "--family", "pick_cube", "--variant", "cube_2cm", "--out", str(out)]) == 0
+    assert (
+        main(["--from-h5", str(maniskill_h5), "--family", "pick_cube", "--variant", "cube_2cm", "--out", str(out)]) == 0
+    )
     episodes, saved = load_demos(out)
     assert len(episodes) == H5_EPISODES and saved["lengths"] == meta["lengths"]
     assert torch.equal(torch.cat([e["observation"] for e in episodes]), states["observation"])
@@ -185,9 +203,18 @@ def _policy_run(tmp_path, family_name: str, env_cfg: dict):
     env.close()
     run = tmp_path / "run"
     (run / "checkpoints").mkdir(parents=True)
-    torch.save({"format": POLICY_FORMAT, "version": 1, "frames": 0, "family": family_name,
-                "policy_in_keys": ["observation", "stage_indicators"], "hidden": [32, 32], "actor": actor.state_dict()},
-               run / "checkpoints" / "policy.pt")
+    torch.save(
+        {
+            "format": POLICY_FORMAT,
+            "version": 1,
+            "frames": 0,
+            "family": family_name,
+            "policy_in_keys": ["observation", "stage_indicators"],
+            "hidden": [32, 32],
+            "actor": actor.state_dict(),
+        },
+        run / "checkpoints" / "policy.pt",
+    )
     OmegaConf.save(OmegaConf.create({"env": env_cfg}), run / "config.yaml")
     return run
 
@@ -198,8 +225,16 @@ def test_a_policy_records_demos_of_its_successful_episodes(tmp_path):
     from drs_torchrl.tasks import get_family
 
     # HalfCheetah (no solver): success = the running return passed the threshold; 0.0 makes some episodes succeed
-    run = _policy_run(tmp_path, "half_cheetah", {"family": "half_cheetah", "split": "test", "max_episode_steps": 40,
-                                                 "variant_overrides": {"success_return": 0.0}})
+    run = _policy_run(
+        tmp_path,
+        "half_cheetah",
+        {
+            "family": "half_cheetah",
+            "split": "test",
+            "max_episode_steps": 40,
+            "variant_overrides": {"success_return": 0.0},
+        },
+    )
     states, meta = record_policy_demos(run, None, 3, seed=1, deterministic=False, max_episodes=200, progress=False)
     assert meta["family"] == "half_cheetah" and meta["episodes"] == 3 and meta["solver"].startswith("policy:")
     assert meta["variant"] == "test"  # by default, the split the run trained on
@@ -226,8 +261,11 @@ def test_policy_demo_errors_name_the_problem(tmp_path, capsys):
     assert main(["--from-policy", str(bad.parent)]) == 2
     assert "not a drs-torchrl policy checkpoint" in capsys.readouterr().err
     # a policy that never succeeds: stopped after --max-episodes, with a hint
-    run = _policy_run(tmp_path, "half_cheetah", {"family": "half_cheetah", "max_episode_steps": 5,
-                                                 "variant_overrides": {"success_return": 1.0e6}})
+    run = _policy_run(
+        tmp_path,
+        "half_cheetah",
+        {"family": "half_cheetah", "max_episode_steps": 5, "variant_overrides": {"success_return": 1.0e6}},
+    )
     with pytest.raises(RuntimeError, match=r"succeeded in only 0 of 2 episodes.*--stochastic"):
         record_policy_demos(run, num=1, max_episodes=2, progress=False)
     # a ManiSkill family without a solver; the run's variant overrides (5-step valve episodes) apply
@@ -276,8 +314,15 @@ def test_planner_demos_replayed_in_the_agents_controller(pick_cube, tmp_path):
     import drs_torchrl.envs.variants  # noqa: F401
 
     args = pick_cube.env_args("cube_2cm")
-    env = gym.make(args["env_id"], obs_mode="state", control_mode="pd_ee_delta_pos", num_envs=1, sim_backend="physx_cpu",
-                   max_episode_steps=1000, **args["env_kwargs"])
+    env = gym.make(
+        args["env_id"],
+        obs_mode="state",
+        control_mode="pd_ee_delta_pos",
+        num_envs=1,
+        sim_backend="physx_cpu",
+        max_episode_steps=1000,
+        **args["env_kwargs"],
+    )
     try:
         obs, _ = env.reset(seed=meta["seeds"][0])
         assert np.allclose(np.asarray(obs).reshape(-1), ep["state", "observation"][0].numpy(), atol=1e-5)
@@ -314,17 +359,32 @@ def test_a_stage_ablation_relabels_the_demonstrations_and_their_previous_states(
         assert torch.equal(ep["state", "stage"][1:], ep["stage"][:-1]) and int(ep["state", "stage"][0]) == 0
         assert int(ep["stage"][-1]) == 2 and int(old["stage"][-1]) == 3
     same, _ = restage_demos(episodes, meta, meta["stage_keys"])  # the recorded stages: nothing changes
-    assert all(torch.equal(a["state", "stage_indicators"], b["state", "stage_indicators"]) for a, b in zip(episodes, same))
+    assert all(
+        torch.equal(a["state", "stage_indicators"], b["state", "stage_indicators"]) for a, b in zip(episodes, same)
+    )
     with pytest.raises(DemoError, match=r"\['is_lifted'\] are not among them"):
         restage_demos(episodes, meta, ["is_lifted", "success"])
 
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
         cfg_overrides = [
-            "env=pick_cube", "+ablation=pnp_grasped_success", f"demos.path={demo_dir}", "demos.sac_share=0.25",
-            "demos.stage_buffers=false", "total_frames=256", "algo.learning_starts=128", "algo.batch_size=32",
-            "algo.hidden=[32,32]", "reward.disc.batch_size=16", "logger.interval=128", "eval.interval=100000",
-            "eval.episodes=1", "checkpoint_interval=100000", "logger.progress_bar=false", "logger.tensorboard=false",
-            "algo.collector._target_=torchrl.collectors.Collector"]
+            "env=pick_cube",
+            "+ablation=pnp_grasped_success",
+            f"demos.path={demo_dir}",
+            "demos.sac_share=0.25",
+            "demos.stage_buffers=false",
+            "total_frames=256",
+            "algo.learning_starts=128",
+            "algo.batch_size=32",
+            "algo.hidden=[32,32]",
+            "reward.disc.batch_size=16",
+            "logger.interval=128",
+            "eval.interval=100000",
+            "eval.episodes=1",
+            "checkpoint_interval=100000",
+            "logger.progress_bar=false",
+            "logger.tensorboard=false",
+            "algo.collector._target_=torchrl.collectors.Collector",
+        ]
         cfg = compose("learn", overrides=cfg_overrides)
     tr = Trainer(cfg, "learn", tmp_path / "run")
     try:
@@ -337,21 +397,33 @@ def test_a_stage_ablation_relabels_the_demonstrations_and_their_previous_states(
         tr.close()
     # a placed-threshold ablation with demonstrations recorded at the default threshold: said, with the fix
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
-        cfg = compose("learn", overrides=[*[o for o in cfg_overrides if not o.startswith("+ablation")], "+ablation=placed_5cm"])
+        cfg = compose(
+            "learn", overrides=[*[o for o in cfg_overrides if not o.startswith("+ablation")], "+ablation=placed_5cm"]
+        )
     Trainer(cfg, "learn", tmp_path / "run5").close()
     out = capsys.readouterr().out
-    assert "recorded without this run's env.variant_overrides placed_thresh=0.05 (recorded with the variant's default)" in out
+    assert (
+        "recorded without this run's env.variant_overrides placed_thresh=0.05 (recorded with the variant's default)"
+        in out
+    )
     assert "drs-demos --family pick_cube --override placed_thresh=0.05 --out NEW.demos" in out
 
 
 def test_variant_mismatches_name_the_overrides_a_recording_lacks():
     from drs_torchrl.demos import variant_mismatches
 
-    pooled = {"variant_kwargs": {"variants": [{"cube_half_size": 0.02, "goal_thresh": 0.05}, {"cube_half_size": 0.025, "goal_thresh": 0.05}]}}
+    pooled = {
+        "variant_kwargs": {
+            "variants": [{"cube_half_size": 0.02, "goal_thresh": 0.05}, {"cube_half_size": 0.025, "goal_thresh": 0.05}]
+        }
+    }
     assert variant_mismatches(pooled, {"goal_thresh": 0.05}) == [] and variant_mismatches(pooled, None) == []
     assert variant_mismatches(pooled, {"goal_thresh": 0.1}) == ["goal_thresh=0.1 (recorded with 0.05)"]
     single = {"variant_kwargs": {"cube_half_size": 0.02}}
-    assert variant_mismatches(single, {"goal_thresh": 0.05}) == ["goal_thresh=0.05 (recorded with the variant's default)"]
+    assert variant_mismatches(single, {"goal_thresh": 0.05}) == [
+        "goal_thresh=0.05 (recorded with the variant's default)"
+    ]
     mixed = {"variant_kwargs": {"variants": [{"goal_thresh": 0.05}, {}]}}
     assert variant_mismatches(mixed, {"goal_thresh": 0.05}) == [
-        "goal_thresh=0.05 (recorded with 0.05, the variant's default)"]
+        "goal_thresh=0.05 (recorded with 0.05, the variant's default)"
+    ]

@@ -1,4 +1,5 @@
 """The per-stage discriminator loss: learns separable data, early stop freezes a stage."""
+
 import torch
 from tensordict import TensorDict
 
@@ -40,7 +41,9 @@ def test_learns_separable_data_to_full_accuracy():
         assert out[f"accuracy_{k}"] > 0.99
         assert out[f"loss_{k}"] < first[f"loss_{k}"] * 0.5
     # the learned reward ranks positives of stage k above its negatives within the same stage
-    x0 = TensorDict({"observation": torch.tensor([[2.0, -2.0, 0.0], [-2.0, -2.0, 0.0]]), "stage": torch.tensor([[0], [0]])}, [2])
+    x0 = TensorDict(
+        {"observation": torch.tensor([[2.0, -2.0, 0.0], [-2.0, -2.0, 0.0]]), "stage": torch.tensor([[0], [0]])}, [2]
+    )
     r = reward.reward(x0)
     assert r[0] > r[1]
 

@@ -4,6 +4,7 @@
 anchor that does not exist, an API docstring that does not render, a figure of ``results/`` a page shows that is
 not in the repository, and a console script whose ``--help`` cannot be rendered (``docs/hooks/reference.py``).
 """
+
 from __future__ import annotations
 
 import importlib.util
@@ -24,17 +25,36 @@ def site(tmp_path_factory) -> Path:
         pytest.fail("mkdocs is not installed: install the docs extra (pip install -e '.[docs]'; bin/setup.sh does)")
     out = tmp_path_factory.mktemp("site")
     env = dict(os.environ, NO_MKDOCS_2_WARNING="1")
-    proc = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(out)],
-                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(
+        [sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(out)],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert proc.returncode == 0, f"mkdocs build --strict failed:\n{proc.stdout[-4000:]}\n{proc.stderr[-8000:]}"
     return out
 
 
 @pytest.mark.slow
 def test_site_builds_strict_with_every_page(site):
-    for page in ("index.html", "getting-started.html", "concepts.html", "own-task.html", "recipe.html",
-                 "rewards.html", "studies.html", "claims.html", "performance.html", "reliability.html",
-                 "reference/cli.html", "reference/config.html", "api/transforms.html", "api/trainers.html"):
+    for page in (
+        "index.html",
+        "getting-started.html",
+        "concepts.html",
+        "own-task.html",
+        "recipe.html",
+        "rewards.html",
+        "studies.html",
+        "claims.html",
+        "performance.html",
+        "reliability.html",
+        "reference/cli.html",
+        "reference/config.html",
+        "api/transforms.html",
+        "api/trainers.html",
+    ):
         assert (site / page).is_file(), page
     # a figure of the committed studies is carried into the site
     assert (site / "results" / "quickstart" / "seed0" / "quickstart.png").is_file()
@@ -69,7 +89,7 @@ def test_reward_zoo_lists_every_reward():
 def test_readme_setup_commands_are_what_ci_runs():
     readme = (ROOT / "README.md").read_text()
     ci = (ROOT / ".ci" / "run").read_text()
-    test_command = "bin/setup.sh && .venv/bin/python -m pytest -q -n auto"
+    test_command = "bin/setup.sh && .venv/bin/ruff check . && .venv/bin/ruff format --check . && .venv/bin/python -m pytest -q -n auto"
     assert test_command in ci
     assert test_command in readme and "bin/setup.sh && bin/drs-quickstart" in readme
     assert '".[test,locomotion,docs]"' in (ROOT / "bin" / "setup.sh").read_text()

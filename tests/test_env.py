@@ -1,4 +1,5 @@
 """The ManiSkill3 -> TorchRL env on the real simulator (SAPIEN, software Vulkan on CPU)."""
+
 import pytest
 import torch
 from torchrl.envs.utils import check_env_specs

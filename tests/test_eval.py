@@ -1,4 +1,5 @@
 """drs-eval: deterministic episodes of a trained run on any split, with ManiSkill's metrics and mp4 video."""
+
 import json
 import subprocess
 import sys
@@ -11,9 +12,17 @@ pytestmark = [pytest.mark.sim, pytest.mark.slow]
 
 BIN = Path(sys.executable).parent
 TINY = [
-    "total_frames=320", "algo.learning_starts=128", "algo.batch_size=32", "algo.hidden=[16,16]",
-    "reward.disc.batch_size=16", "logger.interval=128", "eval.interval=100000", "eval.episodes=0",
-    "checkpoint_interval=100000", "logger.tensorboard=false", "logger.progress_bar=false",
+    "total_frames=320",
+    "algo.learning_starts=128",
+    "algo.batch_size=32",
+    "algo.hidden=[16,16]",
+    "reward.disc.batch_size=16",
+    "logger.interval=128",
+    "eval.interval=100000",
+    "eval.episodes=0",
+    "checkpoint_interval=100000",
+    "logger.tensorboard=false",
+    "logger.progress_bar=false",
     "env.max_episode_steps=20",
 ]
 
@@ -45,8 +54,17 @@ def test_eval_reports_maniskill_metrics_on_the_held_out_split(trained):
 
 
 def test_eval_records_one_mp4_frame_per_step(trained, tmp_path):
-    p = run("drs-eval", str(trained), "--episodes", "1", "--video", str(tmp_path / "v"), "--out", str(tmp_path / "r.json"),
-            cwd=trained)
+    p = run(
+        "drs-eval",
+        str(trained),
+        "--episodes",
+        "1",
+        "--video",
+        str(tmp_path / "v"),
+        "--out",
+        str(tmp_path / "r.json"),
+        cwd=trained,
+    )
     assert p.returncode == 0, p.stderr[-2000:]
     row = json.loads((tmp_path / "r.json").read_text())["rows"][0]
     frames = list(iio.imiter(row["video"]))
@@ -58,9 +76,14 @@ def test_eval_records_one_mp4_frame_per_step(trained, tmp_path):
 def test_eval_episode_seed_fixes_each_episode_start(trained, tmp_path):
     """--episode-seed S: episode i starts from seed S+i, whatever the number of episodes before it."""
     rows = {}
-    for name, args in {"5x2": ["--episode-seed", "5", "--episodes", "2"], "6x1": ["--episode-seed", "6", "--episodes", "1"],
-                       "5x1": ["--episode-seed", "5", "--episodes", "1"]}.items():
-        p = run("drs-eval", str(trained), "--split", "test", *args, "--out", str(tmp_path / f"{name}.json"), cwd=trained)
+    for name, args in {
+        "5x2": ["--episode-seed", "5", "--episodes", "2"],
+        "6x1": ["--episode-seed", "6", "--episodes", "1"],
+        "5x1": ["--episode-seed", "5", "--episodes", "1"],
+    }.items():
+        p = run(
+            "drs-eval", str(trained), "--split", "test", *args, "--out", str(tmp_path / f"{name}.json"), cwd=trained
+        )
         assert p.returncode == 0, p.stderr[-2000:]
         rows[name] = json.loads((tmp_path / f"{name}.json").read_text())["rows"]
     assert [r["seed"] for r in rows["5x2"]] == [5, 6]
@@ -70,11 +93,14 @@ def test_eval_episode_seed_fixes_each_episode_start(trained, tmp_path):
     assert rows["5x2"][0]["start"] != rows["5x2"][1]["start"]  # two different starts
 
 
-@pytest.mark.parametrize("args,message", [
-    (["--split", "cube_9cm"], "no variant 'cube_9cm'"),
-    (["--episodes", "0"], "--episodes must be >= 1"),
-    (["--episode-seed", "-1"], "--episode-seed must be >= 0"),
-])
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (["--split", "cube_9cm"], "no variant 'cube_9cm'"),
+        (["--episodes", "0"], "--episodes must be >= 1"),
+        (["--episode-seed", "-1"], "--episode-seed must be >= 0"),
+    ],
+)
 def test_eval_bad_input_is_one_line(trained, args, message):
     p = run("drs-eval", str(trained), *args, cwd=trained)
     assert p.returncode == 2 and message in p.stderr and "Traceback" not in p.stderr
@@ -107,10 +133,27 @@ def test_eval_reads_a_committed_record(trained, tmp_path):
 
 
 def test_reward_probe_reports_every_stage_with_a_rank_correlation(trained, tmp_path):
-    p = subprocess.run([sys.executable, "-m", "drs_torchrl.probe",
-                        "--reward", str(trained / "checkpoints" / "reward.pt"), "--policy", str(trained),
-                        "--splits", "test", "--episodes", "2", "--out", str(tmp_path)],
-                       capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "drs_torchrl.probe",
+            "--reward",
+            str(trained / "checkpoints" / "reward.pt"),
+            "--policy",
+            str(trained),
+            "--splits",
+            "test",
+            "--episodes",
+            "2",
+            "--out",
+            str(tmp_path),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=tmp_path,
+    )
     assert p.returncode == 0, p.stderr[-2000:]
     res = json.loads((tmp_path / "probe.json").read_text())
     stages = res["splits"]["test"]["stages"]
@@ -122,17 +165,36 @@ def test_reward_probe_reports_every_stage_with_a_rank_correlation(trained, tmp_p
 
 def test_reward_probe_labels_stages_with_a_variant_override_that_reaches_the_env(trained, tmp_path):
     """--variant-override placed_thresh=... labels the stages as a reward learned at that threshold does."""
+
     def probe(*extra):
-        return subprocess.run([sys.executable, "-m", "drs_torchrl.probe",
-                               "--reward", str(trained / "checkpoints" / "reward.pt"), "--policy", str(trained),
-                               "--splits", "test", "--episodes", "1", "--out", str(tmp_path), *extra],
-                              capture_output=True, text=True, timeout=600, cwd=tmp_path)
+        return subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "drs_torchrl.probe",
+                "--reward",
+                str(trained / "checkpoints" / "reward.pt"),
+                "--policy",
+                str(trained),
+                "--splits",
+                "test",
+                "--episodes",
+                "1",
+                "--out",
+                str(tmp_path),
+                *extra,
+            ],
+            capture_output=True,
+            text=True,
+            timeout=600,
+            cwd=tmp_path,
+        )
 
     p = probe("--variant-override", "placed_thresh=0.05")
     assert p.returncode == 0, p.stderr[-2000:]
     assert json.loads((tmp_path / "probe.json").read_text())["variant_overrides"] == {"placed_thresh": 0.05}
     assert "{'placed_thresh': 0.05} (stages labelled with them)" in (tmp_path / "probe.md").read_text()
-    p = probe("--variant-override", "placed_thresh=-1")   # the env itself refuses it: the override got there
+    p = probe("--variant-override", "placed_thresh=-1")  # the env itself refuses it: the override got there
     assert p.returncode != 0 and "placed_thresh must be >= 0" in p.stderr
     p = probe("--variant-override", "placed_thresh")
     assert p.returncode == 2 and "KEY=VALUE" in p.stderr
@@ -144,7 +206,7 @@ def test_spearman_of_the_probe_ranks_and_refuses_degenerate_inputs():
     import numpy as np
 
     x = np.array([0.1, 0.5, 0.2, 0.9])
-    assert spearman(x, x ** 3) == pytest.approx(1.0) and spearman(x, -x) == pytest.approx(-1.0)
+    assert spearman(x, x**3) == pytest.approx(1.0) and spearman(x, -x) == pytest.approx(-1.0)
     assert np.isnan(spearman(x, np.ones(4))) and np.isnan(spearman(x[:2], x[:2]))
 
 
@@ -157,8 +219,13 @@ def test_feature_swap_finds_the_inputs_a_score_reads():
     fa[:, 2], fb[:, 2] = 1.0, -1.0
     fa[:, 0], fb[:, 0] = torch.randn(50), torch.randn(40) + 5
 
-    rows = {r["group"]: r for r in feature_swap(lambda f: torch.tanh(f[:, 2]), fa, fb, {"x": (0, 2), "v": (2, 3), "g": (3, 4)})}
-    assert rows["(none)"]["a"] == pytest.approx(0.7616, abs=1e-3) and rows["(none)"]["b"] == pytest.approx(-0.7616, abs=1e-3)
+    rows = {
+        r["group"]: r
+        for r in feature_swap(lambda f: torch.tanh(f[:, 2]), fa, fb, {"x": (0, 2), "v": (2, 3), "g": (3, 4)})
+    }
+    assert rows["(none)"]["a"] == pytest.approx(0.7616, abs=1e-3) and rows["(none)"]["b"] == pytest.approx(
+        -0.7616, abs=1e-3
+    )
     assert rows["v"]["a"] == pytest.approx(-0.7616, abs=1e-3) and rows["v"]["b"] == pytest.approx(0.7616, abs=1e-3)
     for g in ("x", "g"):
         assert (rows[g]["a"], rows[g]["b"]) == (rows["(none)"]["a"], rows["(none)"]["b"])
@@ -173,14 +240,21 @@ def test_feature_groups_name_every_column_of_the_pick_reward_input():
     from drs_torchrl.transforms import DrSReward
 
     fam = get_family("pick_cube")
-    groups = feature_groups(fam, DrSReward(3, ["observation", "stage_indicators"], {"observation": 42, "stage_indicators": 3}))
+    groups = feature_groups(
+        fam, DrSReward(3, ["observation", "stage_indicators"], {"observation": 42, "stage_indicators": 3})
+    )
     spans = sorted(groups.values())
     assert spans[0][0] == 0 and spans[-1][1] == 45 and all(a[1] == b[0] for a, b in zip(spans, spans[1:]))
     assert groups["joint velocities"] == (9, 18) and groups["stage_indicators"] == (42, 45)
-    task = feature_groups(fam, DrSReward(3, ["task_observation", "stage_indicators"], {"task_observation": 19, "stage_indicators": 3}))
+    task = feature_groups(
+        fam, DrSReward(3, ["task_observation", "stage_indicators"], {"task_observation": 19, "stage_indicators": 3})
+    )
     assert task["object to goal"] == (16, 19) and task["stage_indicators"] == (19, 22)
     # an input the family names no layout for is one group
-    valve = feature_groups(get_family("turn_valve"), DrSReward(2, ["observation", "stage_indicators"], {"observation": 30, "stage_indicators": 2}))
+    valve = feature_groups(
+        get_family("turn_valve"),
+        DrSReward(2, ["observation", "stage_indicators"], {"observation": 30, "stage_indicators": 2}),
+    )
     assert valve == {"observation": (0, 30), "stage_indicators": (30, 32)}
 
 
@@ -194,10 +268,19 @@ def _training_evaluations(tmp_path, *overrides):
     from drs_torchrl.trainers.loop import Trainer
 
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
-        cfg = compose("reuse", overrides=["reward=semi_sparse", "algo.hidden=[16,16]", "eval.episodes=3",
-                                          "env.max_episode_steps=5", "logger.progress_bar=false",
-                                          "logger.tensorboard=false", "algo.collector._target_=torchrl.collectors.Collector",
-                                          *overrides])
+        cfg = compose(
+            "reuse",
+            overrides=[
+                "reward=semi_sparse",
+                "algo.hidden=[16,16]",
+                "eval.episodes=3",
+                "env.max_episode_steps=5",
+                "logger.progress_bar=false",
+                "logger.tensorboard=false",
+                "algo.collector._target_=torchrl.collectors.Collector",
+                *overrides,
+            ],
+        )
     tr = Trainer(cfg, "reuse", tmp_path)
     starts, rollout = [], tr.eval_env.rollout
 

@@ -1,4 +1,5 @@
 """The SAC trainer's make_* factories work on their own, as the README shows (real ManiSkill env)."""
+
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
@@ -44,16 +45,28 @@ def test_factories_assemble_a_sac_update_on_a_family_env():
         eval_env.close()
 
 
-@pytest.mark.parametrize("algo, batch, utd, disc_steps", [("sac_cpu", 256, 0.5, 1), ("sac_cpu_utd025", 512, 0.25, 2),
-                                                          ("sac_cpu_utd033", 384, 0.3333333333, 1.5), ("sac_cpu_halfdisc", 256, 0.5, 0.5),
-                                                          ("sac_cpu_utd033_halfdisc", 384, 0.3333333333, 0.75),
-                                                          ("sac_paper", 1024, 0.5, 1), ("sac_paper_utd025", 2048, 0.25, 2)])
+@pytest.mark.parametrize(
+    "algo, batch, utd, disc_steps",
+    [
+        ("sac_cpu", 256, 0.5, 1),
+        ("sac_cpu_utd025", 512, 0.25, 2),
+        ("sac_cpu_utd033", 384, 0.3333333333, 1.5),
+        ("sac_cpu_halfdisc", 256, 0.5, 0.5),
+        ("sac_cpu_utd033_halfdisc", 384, 0.3333333333, 0.75),
+        ("sac_paper", 1024, 0.5, 1),
+        ("sac_paper_utd025", 2048, 0.25, 2),
+    ],
+)
 def test_reward_learner_steps_follow_the_algo_config(algo, batch, utd, disc_steps):
     """Fewer, larger SAC updates keep the discriminators' steps per env step (issue 12): each learned
     reward's ``disc.updates_per_sac_update`` comes from the algo config, and an explicit override wins."""
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
         for reward in ("drs", "vice_raq", "gail", "oril"):
             cfg = compose("learn", overrides=[f"algo={algo}", f"reward={reward}"])
-            assert (cfg.algo.batch_size, cfg.algo.utd, cfg.reward.disc.updates_per_sac_update) == (batch, utd, disc_steps)
+            assert (cfg.algo.batch_size, cfg.algo.utd, cfg.reward.disc.updates_per_sac_update) == (
+                batch,
+                utd,
+                disc_steps,
+            )
         cfg = compose("learn", overrides=[f"algo={algo}", "reward.disc.updates_per_sac_update=3"])
         assert cfg.reward.disc.updates_per_sac_update == 3

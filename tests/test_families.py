@@ -5,6 +5,7 @@ stage labels; the splits are disjoint; every episode draws a variant of the spli
 really changes with it; a variant override from the Hydra config reaches the simulator. The
 asset-backed families (YCB, PartNet-Mobility) fail at once with the download command.
 """
+
 import time
 from pathlib import Path
 
@@ -22,7 +23,11 @@ pytestmark = pytest.mark.sim
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 RUNNABLE = ["pick_cube", "pick_and_place", "turn_valve", "stack_cube", "place_sphere", "cross_robot"]
-ASSET_BACKED = {"pick_ycb": "ycb", "turn_faucet": "partnet_mobility_faucet", "open_cabinet_door": "partnet_mobility_cabinet"}
+ASSET_BACKED = {
+    "pick_ycb": "ycb",
+    "turn_faucet": "partnet_mobility_faucet",
+    "open_cabinet_door": "partnet_mobility_cabinet",
+}
 # (variant parameter, value) overridden from the command line in the config test
 OVERRIDE = {
     "pick_cube": ("cube_half_size", 0.03),
@@ -102,7 +107,9 @@ def test_every_episode_draws_a_variant_of_the_split(family_envs):
             if fam.name == "turn_valve":
                 level = fam.variants[names[idx]]["level"]
                 assert u._valve_level[u._active_valve] == level
-                assert float(u.success_threshold[0]) == pytest.approx({0: 1.5708, 4: 6.2832}.get(level, 3.1416), abs=1e-3)
+                assert float(u.success_threshold[0]) == pytest.approx(
+                    {0: 1.5708, 4: 6.2832}.get(level, 3.1416), abs=1e-3
+                )
         assert len(set(seen)) >= 2, f"{fam.name}/{split}: 16 resets drew only {set(seen)}"
 
 
@@ -112,7 +119,9 @@ def test_a_variant_override_from_the_config_reaches_the_simulator(family_envs):
     with initialize_config_dir(config_dir=str(CONF), version_base=None):
         cfg = compose("learn", overrides=[f"env={fam.name}", f"+env.variant_overrides.{key}={value}", "env.split=test"])
     assert cfg.env.family == fam.name
-    env = make_family_env(fam, cfg.env.split, variant_overrides=OmegaConf.to_container(cfg.env.variant_overrides), seed=0)
+    env = make_family_env(
+        fam, cfg.env.split, variant_overrides=OmegaConf.to_container(cfg.env.variant_overrides), seed=0
+    )
     try:
         u = env.base_env.unwrapped
         for _ in range(3):
@@ -162,11 +171,18 @@ def test_turn_valve_episodes_end_at_their_own_levels_time_limit():
     finally:
         env.close()
     # a variant parameter sets one length (longer than the family's 300 too); env.max_episode_steps caps it
-    for variant, overrides, cap, steps in (("level4", {"max_steps": 7}, None, 7), ("level1", {"max_steps": 320}, None, 320),
-                                           ("level0", None, 50, 50)):
+    for variant, overrides, cap, steps in (
+        ("level4", {"max_steps": 7}, None, 7),
+        ("level1", {"max_steps": 320}, None, 320),
+        ("level0", None, 50, 50),
+    ):
         env = make_family_env(fam, variant, variant_overrides=overrides, max_episode_steps=cap, seed=0)
         try:
-            assert env.rollout(400, policy=hold_still, break_when_any_done=True).shape[0] == steps, (variant, overrides, cap)
+            assert env.rollout(400, policy=hold_still, break_when_any_done=True).shape[0] == steps, (
+                variant,
+                overrides,
+                cap,
+            )
         finally:
             env.close()
     with pytest.raises(ValueError, match="max_steps"):
@@ -212,7 +228,9 @@ def test_env_task_observation_adds_the_task_state_to_the_pick_envs(name):
     assert off.task_observation_key is None and on.task_observation_key == "task_observation"
     from drs_torchrl.tasks import with_task_observation
 
-    with pytest.raises(ValueError, match="family 'turn_valve' has no task state; the families that have one: .*'pick_cube'"):
+    with pytest.raises(
+        ValueError, match="family 'turn_valve' has no task state; the families that have one: .*'pick_cube'"
+    ):
         with_task_observation(get_family("turn_valve"), True)
     env = make_family_env(on, "test", seed=0)
     try:
@@ -262,7 +280,10 @@ def test_motion_planner_demos_for_the_new_families(name):
     states, meta = record_demos(fam, "train", 1, seed=0, progress=False)
     assert bool(states["success"][-1]) and int(states["stage"][-1]) == fam.num_stages
     assert meta["env_id"] == fam.env_id and meta["variant_kwargs"]["variant_names"] == list(fam.train_variants)
-    shapes = {"observation": 48 if name == "stack_cube" else 39 if name == "place_sphere" else 42, "stage_indicators": 3}
+    shapes = {
+        "observation": 48 if name == "stack_cube" else 39 if name == "place_sphere" else 42,
+        "stage_indicators": 3,
+    }
     if fam.task_observation_key:
         shapes[fam.task_observation_key] = 19
         assert states[fam.task_observation_key].shape == (states.shape[0], 19)

@@ -1,5 +1,6 @@
 """The ``half_cheetah`` family (DrS paper, Appendix G): MuJoCo HalfCheetah through TorchRL's GymWrapper,
 one stage (success = running episode return above a threshold), front-leg damping x1.5 at test time."""
+
 import csv
 import json
 import os
@@ -75,10 +76,12 @@ def test_test_split_multiplies_front_leg_damping_by_1_5(family):
 
 
 def test_success_latches_when_the_running_return_passes_the_configured_threshold(family):
-    env = make_family_env(family, "train", variant_overrides={"success_return": 1.0}, reward_mode="dense",
-                          max_episode_steps=100, seed=0)
-    sparse = make_family_env(family, "train", variant_overrides={"success_return": 1.0}, reward_mode="sparse",
-                             max_episode_steps=100, seed=0)
+    env = make_family_env(
+        family, "train", variant_overrides={"success_return": 1.0}, reward_mode="dense", max_episode_steps=100, seed=0
+    )
+    sparse = make_family_env(
+        family, "train", variant_overrides={"success_return": 1.0}, reward_mode="sparse", max_episode_steps=100, seed=0
+    )
     flips = 0
     try:
         torch.manual_seed(0)
@@ -101,14 +104,26 @@ def test_success_latches_when_the_running_return_passes_the_configured_threshold
 
 def _run(cmd, *args, cwd):
     env = dict(os.environ, PYTHONWARNINGS="ignore", OMP_NUM_THREADS="1")
-    return subprocess.run([str(BIN / cmd), *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=600, check=False)
+    return subprocess.run(
+        [str(BIN / cmd), *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=600, check=False
+    )
 
 
 TINY = [
-    "env=half_cheetah", "env.max_episode_steps=100", "env.variant_overrides.success_return=1.0",
-    "total_frames=384", "algo.learning_starts=128", "algo.batch_size=32", "algo.hidden=[32,32]",
-    "reward.disc.batch_size=16", "logger.interval=128", "eval.interval=100000", "eval.episodes=1",
-    "checkpoint_interval=100000", "logger.progress_bar=false", "logger.tensorboard=false",
+    "env=half_cheetah",
+    "env.max_episode_steps=100",
+    "env.variant_overrides.success_return=1.0",
+    "total_frames=384",
+    "algo.learning_starts=128",
+    "algo.batch_size=32",
+    "algo.hidden=[32,32]",
+    "reward.disc.batch_size=16",
+    "logger.interval=128",
+    "eval.interval=100000",
+    "eval.episodes=1",
+    "checkpoint_interval=100000",
+    "logger.progress_bar=false",
+    "logger.tensorboard=false",
 ]
 
 
@@ -129,8 +144,15 @@ def test_drs_learn_and_reuse_run_on_half_cheetah(tmp_path):
     assert "reach_stage_1" in rows[-1] and "beyond_rate_0" in rows[-1]
 
     ck = learn / "checkpoints" / "reward.pt"
-    p = _run("drs-reuse", *TINY, "reward=drs", f"reward.checkpoint={ck}", "env.split=test",
-             f"hydra.run.dir={reuse}", cwd=tmp_path)
+    p = _run(
+        "drs-reuse",
+        *TINY,
+        "reward=drs",
+        f"reward.checkpoint={ck}",
+        "env.split=test",
+        f"hydra.run.dir={reuse}",
+        cwd=tmp_path,
+    )
     assert p.returncode == 0, p.stderr[-3000:]
     assert json.loads((reuse / "summary.json").read_text())["updates"] > 0
     assert "split: test" in (reuse / "config.yaml").read_text()  # front leg damping x1.5

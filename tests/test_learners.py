@@ -1,5 +1,6 @@
 """The reward-learning core's baselines on problems whose answer is known (separable synthetic states),
 their reward transform, and checkpoints; the CLI runs of each are in test_baselines_cli.py."""
+
 import math
 
 import pytest
@@ -7,7 +8,12 @@ import torch
 from tensordict import TensorDict
 from torchrl.data import LazyTensorStorage, ReplayBuffer
 
-from drs_torchrl.learners import DemoDiscriminatorLearner, DrSLearner, OfflineClassifierLearner, SuccessClassifierLearner
+from drs_torchrl.learners import (
+    DemoDiscriminatorLearner,
+    DrSLearner,
+    OfflineClassifierLearner,
+    SuccessClassifierLearner,
+)
 from drs_torchrl.transforms import ClassifierReward, DrSReward, RewardCheckpointError, load_reward
 
 D = 4  # observation size of the synthetic problems
@@ -24,8 +30,15 @@ def states(n, *, good: bool, g=None):
 
 def transitions(n, *, good: bool):
     s, nxt = states(n, good=good), states(n, good=good)
-    return TensorDict({"observation": s["observation"], "stage": s["stage"], "action": torch.full((n, 2), 1.0 if good else -1.0),
-                       "next": nxt}, batch_size=[n])
+    return TensorDict(
+        {
+            "observation": s["observation"],
+            "stage": s["stage"],
+            "action": torch.full((n, 2), 1.0 if good else -1.0),
+            "next": nxt,
+        },
+        batch_size=[n],
+    )
 
 
 def reward(**kw):
@@ -64,7 +77,7 @@ def test_vice_raq_separates_success_states_from_the_rest():
     for _ in range(200):
         stats = learner.update()
     assert float(stats["accuracy"]) > 0.95
-    assert (r.reward(states(50, good=True)).min() > r.reward(states(50, good=False)).max())
+    assert r.reward(states(50, good=True)).min() > r.reward(states(50, good=False)).max()
 
 
 def test_oril_learns_demonstrations_against_random_states_offline():
@@ -84,8 +97,10 @@ def test_oril_learns_demonstrations_against_random_states_offline():
 def test_gail_tells_demonstrations_from_agent_transitions(use_action):
     r = reward(use_action=use_action, action_dim=2 if use_action else None)
     demo = transitions(100, good=True)
-    ep = TensorDict({**demo["next"].to_dict(), "action": demo["action"],
-                     "state": demo.select("observation", "stage")}, batch_size=[100])
+    ep = TensorDict(
+        {**demo["next"].to_dict(), "action": demo["action"], "state": demo.select("observation", "stage")},
+        batch_size=[100],
+    )
     learner = DemoDiscriminatorLearner(r, demos=[ep], batch_size=64, lr=1e-2)
     replay = ReplayBuffer(storage=LazyTensorStorage(1000))
     learner.attach(replay)
@@ -128,12 +143,17 @@ def test_reuse_refuses_a_checkpoint_of_another_method(tmp_path):
     from drs_torchrl.rewards import reward_setup
 
     path = reward(method="vice_raq").save(tmp_path / "v.pt")
-    cfg = OmegaConf.create({"name": "gail_stages", "checkpoint": str(path), "stage_weight": 1.0, "classifier_weight": 1.0})
+    cfg = OmegaConf.create(
+        {"name": "gail_stages", "checkpoint": str(path), "stage_weight": 1.0, "classifier_weight": 1.0}
+    )
     with pytest.raises(RewardCheckpointError, match="learned by reward=vice_raq; use reward=vice_raq"):
         reward_setup(cfg, "reuse")
     with pytest.raises(ValueError, match="needs reward.checkpoint"):
         reward_setup(OmegaConf.create({"name": "oril", "checkpoint": None}), "reuse")
-    assert reward_setup(OmegaConf.create({"name": "vice_raq", "checkpoint": str(path)}), "reuse").frozen.method == "vice_raq"
+    assert (
+        reward_setup(OmegaConf.create({"name": "vice_raq", "checkpoint": str(path)}), "reuse").frozen.method
+        == "vice_raq"
+    )
 
 
 def episode(n, *, success: bool, g=None):
@@ -152,7 +172,9 @@ def test_drs_learner_files_episodes_by_stage_and_separates_them(file_successes):
     torch.manual_seed(0)
     r = DrSReward(1, ["observation"], {"observation": D}, formula="rescaled")
     demo = states(5, good=True)
-    learner = DrSLearner(r, batch_size=64, lr=3e-3, demos=[demo.select("observation", "stage")], file_successes=file_successes)
+    learner = DrSLearner(
+        r, batch_size=64, lr=3e-3, demos=[demo.select("observation", "stage")], file_successes=file_successes
+    )
     g = torch.Generator().manual_seed(1)
     eps = [episode(6, success=i % 2 == 0, g=g) for i in range(20)]
     learner.observe(None, eps)
@@ -167,8 +189,16 @@ def test_drs_learner_files_episodes_by_stage_and_separates_them(file_successes):
     # demos only: positives (good states) and negatives separate cleanly; with the agent's successes
     # filed, their failure-like early states sit on both sides, which caps the accuracy (about 0.62)
     assert float(out["accuracy_0"]) > (0.9 if not file_successes else 0.55)
-    td = TensorDict({"next": {"observation": torch.cat([states(50, good=True)["observation"], states(50, good=False)["observation"]]),
-                              "stage": torch.zeros(100, 1, dtype=torch.long), "reward": torch.zeros(100, 1)}}, batch_size=[100])
+    td = TensorDict(
+        {
+            "next": {
+                "observation": torch.cat([states(50, good=True)["observation"], states(50, good=False)["observation"]]),
+                "stage": torch.zeros(100, 1, dtype=torch.long),
+                "reward": torch.zeros(100, 1),
+            }
+        },
+        batch_size=[100],
+    )
     rew = r(td)["next", "reward"].reshape(-1)
     assert rew[:50].mean() > rew[50:].mean()
     state = learner.state_dict()
@@ -177,22 +207,32 @@ def test_drs_learner_files_episodes_by_stage_and_separates_them(file_successes):
     assert fresh.updates == 200 and torch.equal(fresh.reward(td)["next", "reward"], r(td)["next", "reward"])
 
 
-@pytest.mark.parametrize("rate, expected", [(0.5, [0, 1, 0, 1, 0, 1]), (1.5, [1, 2, 1, 2, 1, 2]), (1, [1] * 6), (2, [2] * 6)])
+@pytest.mark.parametrize(
+    "rate, expected", [(0.5, [0, 1, 0, 1, 0, 1]), (1.5, [1, 2, 1, 2, 1, 2]), (1, [1] * 6), (2, [2] * 6)]
+)
 def test_fractional_reward_learner_steps_carry_over_and_survive_a_checkpoint(rate, expected):
     """``updates_per_rl_update`` may be fractional (issue 12's fewer-updates levers): 0.5 is one
     discriminator step every second RL update, 1.5 one and two in turn; the remainder is saved with
     the learner, so a resumed run keeps the schedule."""
     torch.manual_seed(0)
-    learner = DrSLearner(DrSReward(1, ["observation"], {"observation": D}, formula="rescaled"), batch_size=16,
-                         updates_per_rl_update=rate, demos=[states(5, good=True).select("observation", "stage")])
+    learner = DrSLearner(
+        DrSReward(1, ["observation"], {"observation": D}, formula="rescaled"),
+        batch_size=16,
+        updates_per_rl_update=rate,
+        demos=[states(5, good=True).select("observation", "stage")],
+    )
     g = torch.Generator().manual_seed(1)
     learner.observe(None, [episode(6, success=i % 2 == 0, g=g) for i in range(4)])
     steps = []
     for i in range(6):
         if i == 3:  # a checkpoint round trip mid-schedule
             state = learner.state_dict()
-            learner = DrSLearner(DrSReward(1, ["observation"], {"observation": D}, formula="rescaled"), batch_size=16,
-                                 updates_per_rl_update=rate, demos=[states(5, good=True).select("observation", "stage")])
+            learner = DrSLearner(
+                DrSReward(1, ["observation"], {"observation": D}, formula="rescaled"),
+                batch_size=16,
+                updates_per_rl_update=rate,
+                demos=[states(5, good=True).select("observation", "stage")],
+            )
             learner.observe(None, [episode(6, success=i % 2 == 0, g=g) for i in range(4)])
             learner.load_state_dict(state)
         before = learner.updates

@@ -1,5 +1,6 @@
 """The paper's navigation experiment (Appendix, "Navigation"): the three-room maze env, the reward
 on (s, a) and ``drs-maze`` end to end (learn on the train map, reuse on the test map, report)."""
+
 import csv
 import json
 import os
@@ -102,7 +103,7 @@ def test_dynamics_walls_success_truncation_and_partial_reset():
     assert out["reward"].reshape(-1).tolist() == [0.0, 1.0, 0.0]
     # observation: agent (x=col, y=16-row) and the wall above in the patch
     obs = out["observation"][0]
-    assert obs[:SIZE].argmax() == 5 and obs[SIZE:2 * SIZE].argmax() == SIZE - 1 - 12
+    assert obs[:SIZE].argmax() == 5 and obs[SIZE : 2 * SIZE].argmax() == SIZE - 1 - 12
     assert obs[-9:].reshape(3, 3)[0].tolist() == [1.0, 1.0, 1.0] and obs[-9:][4] == 0
     # partial reset: only env 1 restarts; the others keep their state and step counter
     pos0 = env.pos[0].clone()
@@ -133,10 +134,18 @@ def test_state_action_reward_reads_s_and_a_at_the_root_and_the_stage_of_s_prime(
     r = DrSReward(1, ["observation", "action"], {"observation": obs_dim, "action": 5}, formula="rescaled")
     r.discriminators.trained[:] = True
     B = 6
-    td = TensorDict({
-        "observation": torch.rand(B, obs_dim), "action": onehot([0, 1, 2, 3, 4, 0]),
-        "next": {"observation": torch.rand(B, obs_dim), "stage": torch.tensor([[0]] * 5 + [[1]]), "reward": torch.zeros(B, 1)},
-    }, batch_size=[B])
+    td = TensorDict(
+        {
+            "observation": torch.rand(B, obs_dim),
+            "action": onehot([0, 1, 2, 3, 4, 0]),
+            "next": {
+                "observation": torch.rand(B, obs_dim),
+                "stage": torch.tensor([[0]] * 5 + [[1]]),
+                "reward": torch.zeros(B, 1),
+            },
+        },
+        batch_size=[B],
+    )
     StateActionReward(r)(td)
     x = torch.cat([td["observation"], td["action"].float()], -1)
     expected = r.alpha * torch.tanh(r.discriminators(x)) - 2.0
@@ -173,7 +182,9 @@ def test_discriminator_on_maze_state_actions_prefers_the_demonstrated_moves():
     negatives from random-walk failures, then argmax_a R(s, a) agrees with shortest paths far
     more often than chance (about 1/3 of actions are optimal in a cell)."""
     torch.manual_seed(0)
-    reward = DrSReward(1, ["observation", "action"], {"observation": OBS_DIMS["onehot"], "action": 5}, formula="rescaled")
+    reward = DrSReward(
+        1, ["observation", "action"], {"observation": OBS_DIMS["onehot"], "action": 5}, formula="rescaled"
+    )
     buffers = StageBuffers(1, ["observation", "action"], capacity=20000, batch_size=256)
     for ep in demo_episodes("train", 60, seed=0):
         buffers.add_trajectory(ep, demo=True)
@@ -181,8 +192,18 @@ def test_discriminator_on_maze_state_actions_prefers_the_demonstrated_moves():
     fail = env.rollout(60)  # random actions: no success within 60 steps from the bottom room
     assert not fail["next", "success"].any()
     flat = fail.reshape(-1)
-    buffers.add_trajectory(TensorDict({"next": {"observation": flat["observation"], "action": flat["action"].float(),
-                                                "stage": flat["next", "stage"]}}, batch_size=flat.batch_size))
+    buffers.add_trajectory(
+        TensorDict(
+            {
+                "next": {
+                    "observation": flat["observation"],
+                    "action": flat["action"].float(),
+                    "stage": flat["next", "stage"],
+                }
+            },
+            batch_size=flat.batch_size,
+        )
+    )
     loss = DiscriminatorLoss(reward.discriminators, ["observation", "action"], early_stop_threshold=None)
     opt = torch.optim.Adam(reward.discriminators.parameters(), lr=3e-3)
     for _ in range(300):
@@ -234,9 +255,20 @@ def test_config_errors_name_the_fix():
         validate(compose("maze", overrides=["coords=onehot", "reward.coords=relative"]))  # re-encodable: fine
 
 
-TINY = ["num_envs=8", "max_steps=40", "total_frames=1024", "dqn.frames_per_batch=128", "dqn.learning_starts=256",
-        "dqn.batch_size=32", "dqn.utd=0.25", "eval.interval=512", "eval.episodes=8", "verbose=false",
-        "reward.stage_buffer_size=4000", "reward.disc.batch_size=32"]
+TINY = [
+    "num_envs=8",
+    "max_steps=40",
+    "total_frames=1024",
+    "dqn.frames_per_batch=128",
+    "dqn.learning_starts=256",
+    "dqn.batch_size=32",
+    "dqn.utd=0.25",
+    "eval.interval=512",
+    "eval.episodes=8",
+    "verbose=false",
+    "reward.stage_buffer_size=4000",
+    "reward.disc.batch_size=32",
+]
 
 
 def test_drs_maze_learn_then_reuse_then_report(tmp_path):
@@ -244,8 +276,14 @@ def test_drs_maze_learn_then_reuse_then_report(tmp_path):
     env = {**os.environ, "HYDRA_FULL_ERROR": "1"}
     exe = Path(sys.executable).parent / "drs-maze"
     cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "drs_torchrl.trainers.maze"]
-    proc = subprocess.run([*cmd, "phase=learn", "demos=10", f"hydra.run.dir={learn_dir}", *TINY],
-                          capture_output=True, text=True, env=env, timeout=120, check=False)
+    proc = subprocess.run(
+        [*cmd, "phase=learn", "demos=10", f"hydra.run.dir={learn_dir}", *TINY],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+        check=False,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "reward checkpoint" in proc.stdout
     for f in ("config.yaml", "train.csv", "summary.json", "reward.pt", "policy.pt", "reward_map.png"):
@@ -269,7 +307,10 @@ def test_drs_maze_learn_then_reuse_then_report(tmp_path):
             assert s["map"] == "test" and s["reward"] == name and s["frames"] == 1024
         # an agent seeing only relative coordinates cannot feed a reward learned on absolute ones
         with pytest.raises(MazeConfigError, match="coords=onehot"):
-            cfg = compose("maze", overrides=["phase=reuse", "coords=relative", f"reward.checkpoint={learn_dir / 'reward.pt'}", *TINY])
+            cfg = compose(
+                "maze",
+                overrides=["phase=reuse", "coords=relative", f"reward.checkpoint={learn_dir / 'reward.pt'}", *TINY],
+            )
             train(cfg, tmp_path / "bad")
         assert not (tmp_path / "bad").exists()  # nothing written for a run that cannot start
     assert (tmp_path / "study" / "reuse-drs-s0" / "reward_map.png").is_file()
@@ -289,8 +330,10 @@ def test_drs_maze_learn_then_reuse_then_report(tmp_path):
 
     # a scaled reward is its own group, and a report can gather several folders
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base=None):
-        s = train(compose("maze", overrides=["phase=reuse", "reward.name=sparse", "dqn.reward_scale=0.5", *TINY]),
-                  tmp_path / "study2" / "reuse-sparse-s0")
+        s = train(
+            compose("maze", overrides=["phase=reuse", "reward.name=sparse", "dqn.reward_scale=0.5", *TINY]),
+            tmp_path / "study2" / "reuse-sparse-s0",
+        )
     assert s["reward_scale"] == 0.5
     out = report([tmp_path / "study", tmp_path / "study2"], tmp_path / "results2")
     assert out["runs"] == 4
@@ -307,7 +350,7 @@ def test_observation_matches_the_grid_for_every_cell():
     obs = observation(grid, cells, torch.tensor([2, 8]).expand(len(cells), 2), "onehot")
     patch = obs[:, -9:].reshape(-1, 3, 3)
     for (r, c), p in zip(cells.tolist(), patch):
-        assert p.bool().tolist() == grid[r - 1:r + 2, c - 1:c + 2].tolist()
+        assert p.bool().tolist() == grid[r - 1 : r + 2, c - 1 : c + 2].tolist()
     # moves: the stay action keeps the cell, the others change it by one
     assert MOVES.abs().sum(-1).tolist() == [1, 1, 1, 1, 0]
 
@@ -360,34 +403,62 @@ def test_relative_reward_view_is_decoded_from_the_agents_observation():
         obs = observation(grid, cells, goals, src)
         assert torch.equal(convert_observation(obs, src, "patch"), observation(grid, cells, goals, "patch"))
     assert observation(grid, cells, goals, "patch").shape == (4, OBS_DIMS["patch"])
-    assert observation(grid, cells, goals, "patch")[2].tolist() == [0, 0, 1, 0, 0, 1, 0, 0, 1]  # (7, 15): wall on the right
+    assert observation(grid, cells, goals, "patch")[2].tolist() == [
+        0,
+        0,
+        1,
+        0,
+        0,
+        1,
+        0,
+        0,
+        1,
+    ]  # (7, 15): wall on the right
     # a reward learned on the relative view reads an agent's one-hot transitions through StateActionReward
     drs = DrSReward(1, ["observation", "action"], {"observation": OBS_DIMS["relative"], "action": 5})
     obs = observation(grid, cells, goals, "onehot")
     act = torch.nn.functional.one_hot(torch.tensor([UP, DOWN, LEFT, STAY]), 5).float()
     td = TensorDict({"observation": obs, "action": act, "next": {"stage": torch.zeros(4, 1, dtype=torch.long)}}, [4])
     got = StateActionReward(drs, "onehot")(td)["next", "reward"]
-    want = drs.reward(TensorDict({"observation": observation(grid, cells, goals, "relative"), "action": act,
-                                  "stage": torch.zeros(4, 1, dtype=torch.long)}, [4]))
+    want = drs.reward(
+        TensorDict(
+            {
+                "observation": observation(grid, cells, goals, "relative"),
+                "action": act,
+                "stage": torch.zeros(4, 1, dtype=torch.long),
+            },
+            [4],
+        )
+    )
     assert torch.allclose(got, want)
 
 
 def test_a_patch_only_reward_learns_and_is_reused(tmp_path):
     """``reward.coords=patch``: the reward reads the 3x3 patch and the action, no coordinates."""
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base=None):
-        s = train(compose("maze", overrides=["phase=learn", "demos=10", "reward.coords=patch", *TINY]), tmp_path / "learn")
+        s = train(
+            compose("maze", overrides=["phase=learn", "demos=10", "reward.coords=patch", *TINY]), tmp_path / "learn"
+        )
         assert s["disc_updates"] > 0
         reward = DrSReward.from_checkpoint(tmp_path / "learn" / "reward.pt")
         assert reward.in_shapes["observation"] == OBS_DIMS["patch"]
-        s = train(compose("maze", overrides=["phase=reuse", f"reward.checkpoint={tmp_path / 'learn' / 'reward.pt'}", *TINY]),
-                  tmp_path / "reuse")
+        s = train(
+            compose("maze", overrides=["phase=reuse", f"reward.checkpoint={tmp_path / 'learn' / 'reward.pt'}", *TINY]),
+            tmp_path / "reuse",
+        )
         assert s["map"] == "test" and s["frames"] == 1024 and s["reward_coords"] == "patch"
     # same patch and action, anywhere on either map: the same reward
     grid = make_grid("train")
     cells, goals = torch.tensor([[13, 5], [8, 9]]), torch.tensor([[2, 8], [3, 1]])  # both open all round
     act = torch.nn.functional.one_hot(torch.tensor([UP, UP]), 5).float()
-    td = TensorDict({"observation": observation(grid, cells, goals, "onehot"), "action": act,
-                     "next": {"stage": torch.zeros(2, 1, dtype=torch.long)}}, [2])
+    td = TensorDict(
+        {
+            "observation": observation(grid, cells, goals, "onehot"),
+            "action": act,
+            "next": {"stage": torch.zeros(2, 1, dtype=torch.long)},
+        },
+        [2],
+    )
     r = StateActionReward(reward, "onehot")(td)["next", "reward"]
     assert torch.equal(r[0], r[1])
 
@@ -406,14 +477,33 @@ def test_n_step_windows_that_reach_the_goal_are_terminal():
     trunc = torch.zeros(1, T, 1, dtype=torch.bool)
     trunc[0, 9] = True
     obs = torch.arange(T, dtype=torch.float32).reshape(1, T, 1)
-    batch = TensorDict({"observation": obs, "action": torch.zeros(1, T, 5),
-                        "next": {"observation": obs + 100, "reward": torch.ones(1, T, 1), "terminated": term,
-                                 "truncated": trunc, "done": term | trunc}}, [1, T], names=[None, "time"])
+    batch = TensorDict(
+        {
+            "observation": obs,
+            "action": torch.zeros(1, T, 5),
+            "next": {
+                "observation": obs + 100,
+                "reward": torch.ones(1, T, 1),
+                "terminated": term,
+                "truncated": trunc,
+                "done": term | trunc,
+            },
+        },
+        [1, T],
+        names=[None, "time"],
+    )
     rb = ReplayBuffer(storage=LazyTensorStorage(100, ndim=2), transform=MultiStepTransform(3, 0.9))
     rb.extend(mark_terminal_obs(batch))
     data = terminal_at_window_end(rb.storage[:].reshape(-1).clone())
-    by_t = {int(o): (bool(t), float(n), int(k)) for o, t, n, k in zip(data["observation"].reshape(-1), data["next", "terminated"].reshape(-1),
-                                                                       data["next", "observation"].reshape(-1), data["steps_to_next_obs"].reshape(-1))}
+    by_t = {
+        int(o): (bool(t), float(n), int(k))
+        for o, t, n, k in zip(
+            data["observation"].reshape(-1),
+            data["next", "terminated"].reshape(-1),
+            data["next", "observation"].reshape(-1),
+            data["steps_to_next_obs"].reshape(-1),
+        )
+    }
     # windows from t = 3, 4, 5 end on the goal (obs 105): terminal; t = 2 ends on 104: not
     assert by_t[3] == (True, 105.0, 3) and by_t[4] == (True, 105.0, 2) and by_t[5] == (True, 105.0, 1)
     assert by_t[2] == (False, 104.0, 3) and by_t[6] == (False, 108.0, 3)
@@ -423,41 +513,72 @@ def test_next_state_reward_reads_s_prime_and_a_move_into_a_wall_scores_as_stayin
     """``reward.input=next_state``: R(s') (Sec. 4.3). The reward table of a cell gives a blocked
     move the value of "stay", and the reward transform reads the observation under ``"next"``."""
     torch.manual_seed(0)
-    r = DrSReward(1, ["observation"], {"observation": OBS_DIMS["onehot"]}, formula="rescaled",
-                  metadata={"family": "three_room_maze", "reward_on": "next_state"})
+    r = DrSReward(
+        1,
+        ["observation"],
+        {"observation": OBS_DIMS["onehot"]},
+        formula="rescaled",
+        metadata={"family": "three_room_maze", "reward_on": "next_state"},
+    )
     r.discriminators.trained[:] = True
     cells, table = dense_reward_table(r, "train", (2, 8))
     corner = [i for i, c in enumerate(cells.tolist()) if c == [15, 1]][0]  # bottom-left corner: down and left are walls
     assert table[corner, DOWN] == table[corner, STAY] == table[corner, LEFT] != table[corner, UP]
     B = 4
-    td = TensorDict({"observation": torch.rand(B, OBS_DIMS["onehot"]), "action": onehot([0, 1, 2, 3]),
-                     "next": {"observation": torch.rand(B, OBS_DIMS["onehot"]), "stage": torch.zeros(B, 1, dtype=torch.long),
-                              "reward": torch.zeros(B, 1)}}, batch_size=[B])
+    td = TensorDict(
+        {
+            "observation": torch.rand(B, OBS_DIMS["onehot"]),
+            "action": onehot([0, 1, 2, 3]),
+            "next": {
+                "observation": torch.rand(B, OBS_DIMS["onehot"]),
+                "stage": torch.zeros(B, 1, dtype=torch.long),
+                "reward": torch.zeros(B, 1),
+            },
+        },
+        batch_size=[B],
+    )
     got = StateActionReward(r)(td)["next", "reward"]
     assert torch.allclose(got, r.alpha * torch.tanh(r.discriminators(td["next", "observation"])) - 2.0)
     for ep in demo_episodes("train", 3, seed=0, next_state=True):  # demonstrations carry s', the last one the goal
         goal_obs = ep["next", "observation"][-1]
-        assert torch.equal(goal_obs[: 2 * SIZE], goal_obs[2 * SIZE: 4 * SIZE])  # agent on the goal
+        assert torch.equal(goal_obs[: 2 * SIZE], goal_obs[2 * SIZE : 4 * SIZE])  # agent on the goal
 
 
 def test_control_options_next_state_demos_only_constant_part_and_moved_gate_maps(tmp_path):
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base=None):
-        s = train(compose("maze", overrides=["phase=learn", "reward.input=next_state", "reward.positives=demos", "demos=5", *TINY]),
-                  tmp_path / "learn")
+        s = train(
+            compose(
+                "maze", overrides=["phase=learn", "reward.input=next_state", "reward.positives=demos", "demos=5", *TINY]
+            ),
+            tmp_path / "learn",
+        )
         reward = DrSReward.from_checkpoint(tmp_path / "learn" / "reward.pt")
         assert reward.reward_in_keys == ["observation"] and reward.metadata["reward_on"] == "next_state"
         assert s["reward_input"] == "next_state"
         demo_steps = sum(len(ep) for ep in demo_episodes("train", 5, 0, next_state=True))
         assert s["stage_buffer_counts"][1] == demo_steps  # positives=demos: the agent's successes are not filed
-        s = train(compose("maze", overrides=["phase=reuse", "map=test_shift3", f"reward.checkpoint={tmp_path / 'learn' / 'reward.pt'}",
-                                             "reward.reuse_alpha=0", *TINY]), tmp_path / "reuse")
+        s = train(
+            compose(
+                "maze",
+                overrides=[
+                    "phase=reuse",
+                    "map=test_shift3",
+                    f"reward.checkpoint={tmp_path / 'learn' / 'reward.pt'}",
+                    "reward.reuse_alpha=0",
+                    *TINY,
+                ],
+            ),
+            tmp_path / "reuse",
+        )
         assert s["map"] == "test_shift3" and s["reward_alpha"] == 0.0
         assert reward_label(s) == "drs[s'] constant part (alpha=0)"
         rows = list(csv.DictReader((tmp_path / "reuse" / "train.csv").read_text().splitlines()))
         means = [float(r["reward_mean"]) for r in rows if r["reward_mean"] not in ("", "nan")]
         assert means and all(-2.0 <= m <= -1.0 for m in means)  # alpha=0: -2 a step, -1 on success, nothing learned
         with pytest.raises(MazeConfigError, match="demos > 0"):
-            train(compose("maze", overrides=["phase=learn", "reward.positives=demos", "demos=0", *TINY]), tmp_path / "bad")
+            train(
+                compose("maze", overrides=["phase=learn", "reward.positives=demos", "demos=0", *TINY]), tmp_path / "bad"
+            )
     grid = make_grid("test_shift3")
     assert [(~grid[row]).nonzero().reshape(-1).tolist() for row in WALL_ROWS] == [[6], [10]]
 
@@ -471,9 +592,21 @@ def test_learned_baselines_run_on_the_maze_core_and_are_reused(name, tmp_path):
     checkpoint of that method, phase 2 reuses it (GAIL also as gail_stages), and a checkpoint of
     another method is refused with the fix named."""
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base=None):
-        s = train(compose("maze", overrides=["phase=learn", f"reward.name={name}", "demos=5", "reward.classifier.offline_updates=50",
-                                             "reward.classifier.random_episodes=3", "reward.classifier.batch_size=32", *SHORT]),
-                  tmp_path / "learn")
+        s = train(
+            compose(
+                "maze",
+                overrides=[
+                    "phase=learn",
+                    f"reward.name={name}",
+                    "demos=5",
+                    "reward.classifier.offline_updates=50",
+                    "reward.classifier.random_episodes=3",
+                    "reward.classifier.batch_size=32",
+                    *SHORT,
+                ],
+            ),
+            tmp_path / "learn",
+        )
         reward = load_reward(tmp_path / "learn" / "reward.pt")
         assert reward.method == name and reward.use_action == (name == "gail") and s["disc_updates"] > 0
         assert bool(reward.classifier.trained)
@@ -484,17 +617,44 @@ def test_learned_baselines_run_on_the_maze_core_and_are_reused(name, tmp_path):
         assert (tmp_path / "learn" / "reward_map.png").is_file() and "reward_diagnostics" in s
         reuse_as = ["gail", "gail_stages"] if name == "gail" else [name]
         for as_name in reuse_as:
-            r2 = train(compose("maze", overrides=["phase=reuse", f"reward.name={as_name}", f"reward.checkpoint={tmp_path / 'learn' / 'reward.pt'}",
-                                                  "dqn.reward_scale=0.1", *SHORT]), tmp_path / f"reuse-{as_name}")
+            r2 = train(
+                compose(
+                    "maze",
+                    overrides=[
+                        "phase=reuse",
+                        f"reward.name={as_name}",
+                        f"reward.checkpoint={tmp_path / 'learn' / 'reward.pt'}",
+                        "dqn.reward_scale=0.1",
+                        *SHORT,
+                    ],
+                ),
+                tmp_path / f"reuse-{as_name}",
+            )
             assert r2["map"] == "test" and r2["reward"] == as_name
         other = "vice_raq" if name != "vice_raq" else "oril"
         with pytest.raises(MazeConfigError, match="must match"):
-            train(compose("maze", overrides=["phase=reuse", f"reward.name={other}", f"reward.checkpoint={tmp_path / 'learn' / 'reward.pt'}",
-                                             *SHORT]), tmp_path / "bad")
+            train(
+                compose(
+                    "maze",
+                    overrides=[
+                        "phase=reuse",
+                        f"reward.name={other}",
+                        f"reward.checkpoint={tmp_path / 'learn' / 'reward.pt'}",
+                        *SHORT,
+                    ],
+                ),
+                tmp_path / "bad",
+            )
     if name == "gail":  # the stage term: a success step earns w_s * 0, every other step w_s * (0 - 1) more than D alone
         frozen = load_reward(tmp_path / "learn" / "reward.pt")
-        td = TensorDict({"observation": torch.zeros(2, OBS_DIMS["onehot"]), "action": onehot([0, 1]).float(),
-                         "next": {"observation": torch.zeros(2, OBS_DIMS["onehot"]), "stage": torch.tensor([[0], [1]])}}, batch_size=[2])
+        td = TensorDict(
+            {
+                "observation": torch.zeros(2, OBS_DIMS["onehot"]),
+                "action": onehot([0, 1]).float(),
+                "next": {"observation": torch.zeros(2, OBS_DIMS["onehot"]), "stage": torch.tensor([[0], [1]])},
+            },
+            batch_size=[2],
+        )
         plain = frozen.reward(td)
         frozen.stage_weight = 1.0
         staged = frozen.reward(td)

@@ -1,5 +1,6 @@
 """The wheel works outside the repository: it carries conf/ as drs_torchrl/conf, conf_dir() finds it there in an
 installed layout, and its metadata has one version, the license, every console script and one OpenCV."""
+
 import email
 import os
 import shutil
@@ -24,8 +25,13 @@ def wheel(tmp_path_factory) -> Path:
     shutil.copytree(REPO / "conf", src / "conf", ignore=ignore)
     shutil.copytree(REPO / "src", src / "src", ignore=ignore)
     out = tmp_path_factory.mktemp("dist")
-    p = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(out), "."],
-                       cwd=src, capture_output=True, text=True, timeout=300)
+    p = subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(out), "."],
+        cwd=src,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-2000:]
     (whl,) = out.glob("drs_torchrl-*.whl")
     return whl
@@ -35,8 +41,11 @@ def test_the_wheel_carries_every_config_file(wheel):
     names = set(zipfile.ZipFile(wheel).namelist())
     confs = {f"drs_torchrl/conf/{p.relative_to(REPO / 'conf').as_posix()}" for p in (REPO / "conf").rglob("*.yaml")}
     assert confs and confs <= names, sorted(confs - names)
-    modules = {f"drs_torchrl/{p.relative_to(REPO / 'src/drs_torchrl').as_posix()}" for p in (REPO / "src/drs_torchrl").rglob("*.py")
-               if "__pycache__" not in p.parts}
+    modules = {
+        f"drs_torchrl/{p.relative_to(REPO / 'src/drs_torchrl').as_posix()}"
+        for p in (REPO / "src/drs_torchrl").rglob("*.py")
+        if "__pycache__" not in p.parts
+    }
     assert modules <= names, sorted(modules - names)
 
 
@@ -46,7 +55,9 @@ def test_the_wheel_metadata_has_one_version_the_license_every_script_and_one_ope
     z = zipfile.ZipFile(wheel)
     info = next(n.split("/")[0] for n in z.namelist() if n.endswith(".dist-info/METADATA"))
     meta = email.message_from_bytes(z.read(f"{info}/METADATA"))
-    assert meta["Version"] == drs_torchrl.__version__ and wheel.name.startswith(f"drs_torchrl-{drs_torchrl.__version__}-")
+    assert meta["Version"] == drs_torchrl.__version__ and wheel.name.startswith(
+        f"drs_torchrl-{drs_torchrl.__version__}-"
+    )
     assert meta["License-Expression"] == "MIT" and f"{info}/licenses/LICENSE" in z.namelist()
     opencv = [r for r in meta.get_all("Requires-Dist") if r.lower().startswith("opencv")]
     assert len(opencv) == 1, opencv
@@ -59,13 +70,15 @@ def test_conf_dir_finds_the_configs_inside_an_installed_package(wheel, tmp_path)
     """Unpacked as pip installs it, outside the repository: the apps' config directory is the package's own."""
     site = tmp_path / "site"
     zipfile.ZipFile(wheel).extractall(site)
-    code = ("import drs_torchrl, drs_torchrl.trainers.apps as apps, drs_torchrl.trainers.maze as maze\n"
-            "from hydra import compose, initialize_config_dir\n"
-            "print(drs_torchrl.__file__); print(apps.conf_dir()); print(maze._conf_dir())\n"
-            "with initialize_config_dir(config_dir=apps.conf_dir(), version_base=None):\n"
-            "    print(compose('learn').env.family)\n")
+    code = (
+        "import drs_torchrl, drs_torchrl.trainers.apps as apps, drs_torchrl.trainers.maze as maze\n"
+        "from hydra import compose, initialize_config_dir\n"
+        "print(drs_torchrl.__file__); print(apps.conf_dir()); print(maze._conf_dir())\n"
+        "with initialize_config_dir(config_dir=apps.conf_dir(), version_base=None):\n"
+        "    print(compose('learn').env.family)\n"
+    )
     env = {k: v for k, v in os.environ.items() if k != "DRS_CONF_DIR"}
-    env["PYTHONPATH"] = str(site)   # ahead of the checkout's editable install
+    env["PYTHONPATH"] = str(site)  # ahead of the checkout's editable install
     p = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-3000:]
     module, conf, maze_conf, family = p.stdout.split()[-4:]

@@ -7,6 +7,7 @@ outputs of the commands that name them (--out X, --json X, > X, hydra.run.dir=X)
 with such an option. A path resolves from the repository root or from the document's folder or one above it,
 so a results README may name its own files relatively (`run_files/drs_s0/`); a path whose first part
 exists nowhere there is prose (`fp32/bf16`), not checked."""
+
 from __future__ import annotations
 
 import re
@@ -29,7 +30,12 @@ def _top_level() -> set[str]:
 
 def _looks_like_path(token: str) -> bool:
     """A token that names a file or folder of the repository (not prose like fp32/bf16, not a placeholder)."""
-    if not token or "://" in token or token.startswith(("/", "~", "$", "-", ".venv", "#")) or token.startswith(IGNORED_ROOTS):
+    if (
+        not token
+        or "://" in token
+        or token.startswith(("/", "~", "$", "-", ".venv", "#"))
+        or token.startswith(IGNORED_ROOTS)
+    ):
         return False
     if any(c in token for c in "*?[]{}<>$|,;:()'\"\\=") or "..." in token or "…" in token:
         return False
@@ -128,7 +134,7 @@ def test_the_readme_and_docs_name_paths_that_exist():
 
 
 def test_the_extractor_catches_a_broken_path_and_ignores_what_is_no_path(tmp_path):
-    doc = REPO / "results" / "README.md"   # resolved from results/ and the repository root
+    doc = REPO / "results" / "README.md"  # resolved from results/ and the repository root
     text = """See `results/precision/study.yaml`, `bench/README.md` and [the record](precision/README.md#top).
 Broken: `results/precision/no_such_study.yaml`, [gone](results/nowhere/), `drs-eval results/reuse/turn_valve/run_files/x_s9 --split test`.
 Not paths: `runs/maze/study/learn-s0/reward.pt`, `<run>/reward.pt`, `RUN_DIR/checkpoints/policy.pt`, `fp32/bf16`,
@@ -138,13 +144,26 @@ Not paths: `runs/maze/study/learn-s0/reward.pt`, `<run>/reward.pt`, `RUN_DIR/che
 drs-demos --out results/generated/planner.demos
 ```
 and `results/generated/planner.demos` is written by the command above."""
-    assert sorted(missing_paths(doc, text)) == ["results/nowhere/", "results/precision/no_such_study.yaml",
-                                        "results/reuse/turn_valve/run_files/x_s9"]
+    assert sorted(missing_paths(doc, text)) == [
+        "results/nowhere/",
+        "results/precision/no_such_study.yaml",
+        "results/reuse/turn_valve/run_files/x_s9",
+    ]
     study = tmp_path / "study.yaml"
-    study.write_text(yaml.safe_dump({
-        "root": "runs/x", "record": "results/no_record",
-        "common": ["env=pick_cube", "demos.path=results/reuse/turn_valve/demos_dense_policy_levels024.demos"],
-        "runs": [{"name": "a", "args": ["reward.checkpoint=results/gone/reward.pt", "init_from=<policy:b>", "seed=0"]}]})
-        + "# made by: drs-demos --out results/made.demos; see results/missing/README.md\n")
+    study.write_text(
+        yaml.safe_dump(
+            {
+                "root": "runs/x",
+                "record": "results/no_record",
+                "common": ["env=pick_cube", "demos.path=results/reuse/turn_valve/demos_dense_policy_levels024.demos"],
+                "runs": [
+                    {
+                        "name": "a",
+                        "args": ["reward.checkpoint=results/gone/reward.pt", "init_from=<policy:b>", "seed=0"],
+                    }
+                ],
+            }
+        )
+        + "# made by: drs-demos --out results/made.demos; see results/missing/README.md\n"
+    )
     assert missing_paths(study) == ["results/no_record", "results/gone/reward.pt", "results/missing/README.md"]
-

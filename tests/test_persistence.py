@@ -1,4 +1,5 @@
 """Compact replay-buffer snapshots: same transitions, same age order, oldest overwritten first."""
+
 import torch
 from tensordict import TensorDict
 from torchrl.data import LazyTensorStorage, ReplayBuffer
@@ -35,7 +36,9 @@ def test_stage_buffers_round_trip(tmp_path):
     sb = StageBuffers(2, ["observation"], capacity=100, batch_size=4)
     for stages in ([0, 0, 1, 0], [0, 2, 2], [0, 0]):
         T = len(stages)
-        sb.add_trajectory(TensorDict({"next": {"observation": torch.randn(T, 3), "stage": torch.tensor(stages)[:, None]}}, [T]))
+        sb.add_trajectory(
+            TensorDict({"next": {"observation": torch.randn(T, 3), "stage": torch.tensor(stages)[:, None]}}, [T])
+        )
     dump_buffer(sb, tmp_path / "sb")
     sb2 = StageBuffers(2, ["observation"], capacity=100, batch_size=4)
     load_buffer(sb2, tmp_path / "sb")
@@ -47,8 +50,15 @@ def test_stage_buffers_round_trip(tmp_path):
 
 def _traj(stages, start):
     T = len(stages)
-    return TensorDict({"next": {"observation": torch.arange(start, start + T, dtype=torch.float32)[:, None],
-                                "stage": torch.tensor(stages)[:, None]}}, [T])
+    return TensorDict(
+        {
+            "next": {
+                "observation": torch.arange(start, start + T, dtype=torch.float32)[:, None],
+                "stage": torch.tensor(stages)[:, None],
+            }
+        },
+        [T],
+    )
 
 
 def test_full_wrapped_stage_buffers_round_trip(tmp_path):

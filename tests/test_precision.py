@@ -1,4 +1,5 @@
 """algo.precision: bf16 autocast of the learner with fp32 master weights, detection of native support."""
+
 from pathlib import Path
 
 import pytest
@@ -48,9 +49,16 @@ def test_output_cast_adds_no_parameters():
 
 
 TINY = [
-    "total_frames=640", "algo.learning_starts=256", "algo.batch_size=64", "algo.hidden=[32,32]",
-    "reward.disc.batch_size=32", "eval.episodes=0", "logger.progress_bar=false", "logger.tensorboard=false",
-    "checkpoint_interval=1000000", "logger.interval=256",
+    "total_frames=640",
+    "algo.learning_starts=256",
+    "algo.batch_size=64",
+    "algo.hidden=[32,32]",
+    "reward.disc.batch_size=32",
+    "eval.episodes=0",
+    "logger.progress_bar=false",
+    "logger.tensorboard=false",
+    "checkpoint_interval=1000000",
+    "logger.interval=256",
 ]
 
 
@@ -67,6 +75,7 @@ def test_bf16_learner_multiplies_in_bf16_and_keeps_fp32_weights_state_and_losses
     before = {k: v.clone() for k, v in tr.loss.qvalue_network_params.items(True, True)}
     seen = {}
     hidden = next(m for m in tr.loss.qvalue_network.modules() if isinstance(m, torch.nn.Linear))
+
     def record(module, inputs, output):
         seen.setdefault("hidden", set()).add(output.dtype)
 
@@ -94,7 +103,10 @@ def test_bf16_sac_loss_matches_fp32_on_the_same_batch(tmp_path):
     tr.run()
     sample = tr.replay.sample()
     losses = {}
-    for name, ctx in (("fp32", torch.autocast("cpu", enabled=False)), ("bf16", torch.autocast("cpu", dtype=torch.bfloat16))):
+    for name, ctx in (
+        ("fp32", torch.autocast("cpu", enabled=False)),
+        ("bf16", torch.autocast("cpu", dtype=torch.bfloat16)),
+    ):
         torch.manual_seed(0)
         with ctx:
             out = tr.loss(sample.clone())

@@ -1,5 +1,6 @@
 """``drs-quickstart``, the README's first command: learn on the train map, reuse beside the baselines,
 figure and summary; interrupted runs exit 130 and continue; other settings in the same folder are refused."""
+
 from __future__ import annotations
 
 import json
@@ -16,8 +17,10 @@ from hydra import compose, initialize_config_dir
 from drs_torchrl.quickstart import QuickstartError, plan, prepare_out
 
 ROOT = Path(__file__).resolve().parents[1]
-TINY = ('extra=["num_envs=8","max_steps=40","dqn.frames_per_batch=128","dqn.learning_starts=256","dqn.batch_size=32",'
-        '"eval.interval=512","eval.episodes=8","reward.stage_buffer_size=4000","reward.disc.batch_size=32","demos=10"]')
+TINY = (
+    'extra=["num_envs=8","max_steps=40","dqn.frames_per_batch=128","dqn.learning_starts=256","dqn.batch_size=32",'
+    '"eval.interval=512","eval.episodes=8","reward.stage_buffer_size=4000","reward.disc.batch_size=32","demos=10"]'
+)
 
 
 def _cmd(out: Path, *overrides: str) -> list[str]:
@@ -104,8 +107,13 @@ def test_progress_prints_one_line_per_evaluation_without_a_terminal(capsys):
 def test_a_failed_run_stops_the_others_and_names_its_log(tmp_path):
     out = tmp_path / "qs"
     # the baseline fails at once (bad reward name) while phase 1 is still running beside it
-    p = subprocess.run(_cmd(out, "total_frames=200000", 'reuse.sparse=["reward.name=nonsense"]'), capture_output=True,
-                       text=True, timeout=120, check=False)
+    p = subprocess.run(
+        _cmd(out, "total_frames=200000", 'reuse.sparse=["reward.name=nonsense"]'),
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
     assert p.returncode == 1, p.stderr[-2000:]
     assert "run reuse-sparse failed" in p.stderr and "reward.name must be one of" in p.stderr
     assert str(out / "logs" / "reuse-sparse.log") in p.stderr

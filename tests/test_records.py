@@ -1,5 +1,6 @@
 """Committed records stand alone: every reuse record pins the reward it reused (reward.json: a committed file and
 its sha256), drs-eval reads the pin and refuses a file whose hash differs, and drs-study --report writes it."""
+
 import json
 import shutil
 import subprocess
@@ -14,8 +15,12 @@ from drs_torchrl.study import REWARD_PIN, RecordError, pinned_reward, sha256_fil
 REPO = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
 # reuse records whose phase-1 reward was never committed (maze diagnostics): their pin says so
-LOST = {"results/maze/before_nstep_fix/diagnostics/reuse-rel-s0", "results/maze/before_nstep_fix/diagnostics/reuse-scalar-s0",
-        "results/maze/diagnostics/reuse-patch-s0", "results/maze/diagnostics/scale/reuse-patch-x0.1-s0"}
+LOST = {
+    "results/maze/before_nstep_fix/diagnostics/reuse-rel-s0",
+    "results/maze/before_nstep_fix/diagnostics/reuse-scalar-s0",
+    "results/maze/diagnostics/reuse-patch-s0",
+    "results/maze/diagnostics/scale/reuse-patch-x0.1-s0",
+}
 
 
 def reuse_records() -> list[Path]:
@@ -60,12 +65,16 @@ def test_a_pin_refuses_a_reward_whose_hash_differs_and_one_never_committed(tmp_p
     rec.mkdir()
     reward = tmp_path / "reward.pt"
     reward.write_bytes(b"the reward")
-    (rec / REWARD_PIN).write_text(json.dumps({"checkpoint": str(reward), "sha256": sha256_file(reward), "ran_with": "x"}))
+    (rec / REWARD_PIN).write_text(
+        json.dumps({"checkpoint": str(reward), "sha256": sha256_file(reward), "ran_with": "x"})
+    )
     assert pinned_reward(rec) == reward
     reward.write_bytes(b"another reward")
     with pytest.raises(RecordError, match="sha256 differs"):
         pinned_reward(rec)
-    (rec / REWARD_PIN).write_text(json.dumps({"checkpoint": "results/nowhere/reward.pt", "sha256": "0", "ran_with": "x"}))
+    (rec / REWARD_PIN).write_text(
+        json.dumps({"checkpoint": "results/nowhere/reward.pt", "sha256": "0", "ran_with": "x"})
+    )
     with pytest.raises(RecordError, match="not in this checkout"):
         pinned_reward(rec)
     (rec / REWARD_PIN).write_text(json.dumps({"checkpoint": None, "sha256": None, "ran_with": "runs/x/reward.pt"}))
@@ -82,8 +91,13 @@ def test_drs_eval_refuses_a_record_whose_reward_hash_differs_in_one_line(tmp_pat
     shutil.copytree(REPO / RECORD, rec)
     pin = json.loads((rec / REWARD_PIN).read_text())
     (rec / REWARD_PIN).write_text(json.dumps({**pin, "checkpoint": str(REPO / pin["checkpoint"]), "sha256": "0" * 64}))
-    p = subprocess.run([str(BIN / "drs-eval"), str(rec), "--split", "test", "--episodes", "1"],
-                       capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    p = subprocess.run(
+        [str(BIN / "drs-eval"), str(rec), "--split", "test", "--episodes", "1"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=tmp_path,
+    )
     assert p.returncode == 2
     assert p.stderr.strip().count("\n") == 0 and "sha256 differs" in p.stderr, p.stderr
 
@@ -93,8 +107,22 @@ def test_a_committed_reuse_record_evaluates_from_outside_the_checkout(tmp_path):
     """The record names runs/reuse_pick_cube/learn-placed_5cm_s0/checkpoints/reward.pt, which only existed on the machine
     that ran it; drs-eval takes the pinned committed copy (from any working directory)."""
     assert not (REPO / yaml.safe_load((REPO / RECORD / "config.yaml").read_text())["reward"]["checkpoint"]).exists()
-    p = subprocess.run([str(BIN / "drs-eval"), str(REPO / RECORD), "--split", "test", "--episodes", "2",
-                        "--out", str(tmp_path / "eval.json")], capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    p = subprocess.run(
+        [
+            str(BIN / "drs-eval"),
+            str(REPO / RECORD),
+            "--split",
+            "test",
+            "--episodes",
+            "2",
+            "--out",
+            str(tmp_path / "eval.json"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=tmp_path,
+    )
     assert p.returncode == 0, p.stderr[-2000:]
     res = json.loads((tmp_path / "eval.json").read_text())
     assert res["episodes"] == 2 and res["split"] == "test" and len(res["rows"]) == 2
@@ -103,8 +131,17 @@ def test_a_committed_reuse_record_evaluates_from_outside_the_checkout(tmp_path):
 def _run_dir(d: Path, phase: str, checkpoint: str | None = None):
     d.mkdir(parents=True)
     reward = {"name": "drs", **({"checkpoint": checkpoint} if checkpoint else {})}
-    (d / "config.yaml").write_text(yaml.safe_dump({"phase": phase, "seed": 0, "total_frames": 1000, "reward": reward,
-                                                   "env": {"split": "test" if phase == "reuse" else "train"}}))
+    (d / "config.yaml").write_text(
+        yaml.safe_dump(
+            {
+                "phase": phase,
+                "seed": 0,
+                "total_frames": 1000,
+                "reward": reward,
+                "env": {"split": "test" if phase == "reuse" else "train"},
+            }
+        )
+    )
     (d / "train.csv").write_text("step,success_rate\n1000,0.5\n")
     (d / "eval.csv").write_text("step,episodes,success_rate\n1000,10,0.5\n")
     (d / "summary.json").write_text(json.dumps({"frames": 1000, "interrupted": False}))
@@ -122,11 +159,17 @@ def test_report_pins_the_reward_a_reuse_run_reused_in_its_record(tmp_path, monke
     committed = tmp_path / "results" / "shared" / "reward.pt"
     committed.parent.mkdir(parents=True)
     committed.write_bytes(b"a committed reward")
-    spec = {"root": "runs/s", "app": "reuse", "record": "results/s", "runs": [
-        {"name": "drs_s0", "args": ["reward.checkpoint=<reward:learn_s0>"], "needs": ["learn_s0"]},
-        {"name": "shared_s0", "args": ["reward.checkpoint=results/shared/reward.pt"]},
-        {"name": "gone_s0", "args": ["reward.checkpoint=/nowhere/reward.pt"]},
-        {"name": "learn_s0", "app": "learn", "args": []}]}
+    spec = {
+        "root": "runs/s",
+        "app": "reuse",
+        "record": "results/s",
+        "runs": [
+            {"name": "drs_s0", "args": ["reward.checkpoint=<reward:learn_s0>"], "needs": ["learn_s0"]},
+            {"name": "shared_s0", "args": ["reward.checkpoint=results/shared/reward.pt"]},
+            {"name": "gone_s0", "args": ["reward.checkpoint=/nowhere/reward.pt"]},
+            {"name": "learn_s0", "app": "learn", "args": []},
+        ],
+    }
     (tmp_path / "study.yaml").write_text(yaml.safe_dump(spec))
     _run_dir(tmp_path / "runs/s/learn_s0", "learn")
     _run_dir(tmp_path / "runs/s/drs_s0", "reuse", str(tmp_path / "runs/s/learn_s0/checkpoints/reward.pt"))
@@ -135,9 +178,14 @@ def test_report_pins_the_reward_a_reuse_run_reused_in_its_record(tmp_path, monke
     assert main(["study.yaml", "--report", "results/s"]) == 0
     files = tmp_path / "results/s/run_files"
     pin = json.loads((files / "drs_s0" / REWARD_PIN).read_text())
-    assert pin == {"checkpoint": "results/s/run_files/learn_s0/reward.pt", "ran_with": "runs/s/learn_s0/checkpoints/reward.pt",
-                   "sha256": sha256_file(files / "learn_s0" / "reward.pt")}
-    assert (files / "drs_s0" / "config.yaml").read_text().count("runs/s/learn_s0/checkpoints/reward.pt") == 1  # as it ran
+    assert pin == {
+        "checkpoint": "results/s/run_files/learn_s0/reward.pt",
+        "ran_with": "runs/s/learn_s0/checkpoints/reward.pt",
+        "sha256": sha256_file(files / "learn_s0" / "reward.pt"),
+    }
+    assert (files / "drs_s0" / "config.yaml").read_text().count(
+        "runs/s/learn_s0/checkpoints/reward.pt"
+    ) == 1  # as it ran
     assert pinned_reward(files / "drs_s0") == (files / "learn_s0" / "reward.pt").resolve()
     assert json.loads((files / "shared_s0" / REWARD_PIN).read_text())["checkpoint"] == "results/shared/reward.pt"
     assert not (files / "gone_s0" / REWARD_PIN).exists() and not (files / "learn_s0" / REWARD_PIN).exists()

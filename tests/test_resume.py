@@ -1,4 +1,5 @@
 """A real run killed mid-way (SIGKILL) resumes from its last checkpoint with the same state."""
+
 import csv
 import hashlib
 import json
@@ -17,9 +18,17 @@ pytestmark = [pytest.mark.sim, pytest.mark.slow]
 
 BIN = Path(sys.executable).parent
 TINY = [
-    "algo.learning_starts=256", "algo.batch_size=64", "algo.hidden=[32,32]", "logger.interval=256",
-    "eval.interval=100000", "eval.episodes=1", "checkpoint_interval=512", "logger.progress_bar=false",
-    "reward.disc.batch_size=32", "logger.tensorboard=false", "+env.variant_overrides.goal_thresh=0.08",
+    "algo.learning_starts=256",
+    "algo.batch_size=64",
+    "algo.hidden=[32,32]",
+    "logger.interval=256",
+    "eval.interval=100000",
+    "eval.episodes=1",
+    "checkpoint_interval=512",
+    "logger.progress_bar=false",
+    "reward.disc.batch_size=32",
+    "logger.tensorboard=false",
+    "+env.variant_overrides.goal_thresh=0.08",
 ]
 
 
@@ -41,8 +50,13 @@ def _steps(path: Path):
 def test_sigkill_then_resume_continues_from_the_saved_step(tmp_path):
     env = dict(os.environ, PYTHONWARNINGS="ignore")
     run_dir = tmp_path / "run"
-    proc = subprocess.Popen([str(BIN / "drs-learn"), *TINY, "total_frames=2048", f"hydra.run.dir={run_dir}"],
-                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [str(BIN / "drs-learn"), *TINY, "total_frames=2048", f"hydra.run.dir={run_dir}"],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         _wait_for_state(run_dir, 1024, proc)
         proc.send_signal(signal.SIGKILL)
@@ -71,7 +85,9 @@ def test_sigkill_then_resume_continues_from_the_saved_step(tmp_path):
     finally:
         tr.close()
 
-    p = subprocess.run([str(BIN / "drs-learn"), f"resume={run_dir}"], env=env, capture_output=True, text=True, timeout=600)
+    p = subprocess.run(
+        [str(BIN / "drs-learn"), f"resume={run_dir}"], env=env, capture_output=True, text=True, timeout=600
+    )
     assert p.returncode == 0, p.stderr[-3000:]
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["resumed_from"] == saved_frames and summary["frames"] >= 2048
@@ -85,8 +101,13 @@ def test_sigkill_then_resume_continues_from_the_saved_step(tmp_path):
 def test_sigterm_saves_state_and_resume_finishes(tmp_path):
     env = dict(os.environ, PYTHONWARNINGS="ignore")
     run_dir = tmp_path / "run"
-    proc = subprocess.Popen([str(BIN / "drs-learn"), *TINY, "total_frames=100000", f"hydra.run.dir={run_dir}"],
-                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [str(BIN / "drs-learn"), *TINY, "total_frames=100000", f"hydra.run.dir={run_dir}"],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     _wait_for_state(run_dir, 512, proc)
     proc.send_signal(signal.SIGTERM)
     out, err = proc.communicate(120)
@@ -95,8 +116,13 @@ def test_sigterm_saves_state_and_resume_finishes(tmp_path):
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["interrupted"] is True
     assert int((run_dir / "checkpoints" / "state" / "COMPLETE").read_text()) == summary["frames"]
-    p = subprocess.run([str(BIN / "drs-learn"), f"resume={run_dir}", f"total_frames={summary['frames'] + 256}"],
-                       env=env, capture_output=True, text=True, timeout=600)
+    p = subprocess.run(
+        [str(BIN / "drs-learn"), f"resume={run_dir}", f"total_frames={summary['frames'] + 256}"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert p.returncode == 0, p.stderr[-3000:]
     s2 = json.loads((run_dir / "summary.json").read_text())
     assert s2["resumed_from"] == summary["frames"] and s2["frames"] >= summary["frames"] + 256
@@ -110,19 +136,32 @@ def test_reuse_resumes_and_bad_resumes_leave_the_run_untouched(tmp_path, cli):
     env = dict(os.environ, PYTHONWARNINGS="ignore")
     run_dir = tmp_path / "reuse"
     args = [a for a in TINY if not a.startswith("reward.disc")]
-    p = subprocess.run([str(BIN / "drs-reuse"), *args, "reward=dense", "total_frames=512", f"hydra.run.dir={run_dir}"],
-                       env=env, capture_output=True, text=True, timeout=600)
+    p = subprocess.run(
+        [str(BIN / "drs-reuse"), *args, "reward=dense", "total_frames=512", f"hydra.run.dir={run_dir}"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert p.returncode == 0, p.stderr[-3000:]
     before = _digest(run_dir)
-    for bad, code, expect in [(["algo=sac_paper"], 2, "cannot switch config group 'algo'"),
-                              (["algo.no_such_key=1"], 2, "no_such_key"),  # Hydra refuses it when composing: one line, exit 2
-                              (["total_frames=-3"], 2, "total_frames must be > 0")]:
+    for bad, code, expect in [
+        (["algo=sac_paper"], 2, "cannot switch config group 'algo'"),
+        (["algo.no_such_key=1"], 2, "no_such_key"),  # Hydra refuses it when composing: one line, exit 2
+        (["total_frames=-3"], 2, "total_frames must be > 0"),
+    ]:
         got, err = cli("reuse", f"resume={run_dir}", *bad)  # the console script's app, in this process
         assert got == code and expect in err, err[-2000:]
     got, err = cli("learn", f"resume={run_dir}")
     assert got == 2 and "resume it with drs-reuse" in err
     assert _digest(run_dir) == before, "a failed resume changed or added files in the run directory"
-    p = subprocess.run([str(BIN / "drs-reuse"), f"resume={run_dir}", "total_frames=768"], env=env, capture_output=True, text=True, timeout=600)
+    p = subprocess.run(
+        [str(BIN / "drs-reuse"), f"resume={run_dir}", "total_frames=768"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert p.returncode == 0, p.stderr[-3000:]
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["resumed_from"] == 512 and summary["frames"] >= 768
@@ -130,7 +169,9 @@ def test_reuse_resumes_and_bad_resumes_leave_the_run_untouched(tmp_path, cli):
 
 def test_resume_errors_are_clear(tmp_path):
     env = dict(os.environ, PYTHONWARNINGS="ignore")
-    p = subprocess.run([str(BIN / "drs-learn"), f"resume={tmp_path / 'nothing'}"], env=env, capture_output=True, text=True, timeout=120)
+    p = subprocess.run(
+        [str(BIN / "drs-learn"), f"resume={tmp_path / 'nothing'}"], env=env, capture_output=True, text=True, timeout=120
+    )
     assert p.returncode == 2 and "not a drs-torchrl run directory" in p.stderr
 
 
@@ -139,8 +180,12 @@ def test_resume_config_applies_value_overrides_and_new_variant_parameters(tmp_pa
     (e.g. ``+env.variant_overrides.max_steps=150``), nothing else that the run's config lacks."""
     from drs_torchrl.trainers.apps import ResumeError, resume_config
 
-    OmegaConf.save(OmegaConf.create({"phase": "learn", "total_frames": 100, "env": {"family": "turn_valve", "variant_overrides": {}}}),
-                   tmp_path / "config.yaml")
+    OmegaConf.save(
+        OmegaConf.create(
+            {"phase": "learn", "total_frames": 100, "env": {"family": "turn_valve", "variant_overrides": {}}}
+        ),
+        tmp_path / "config.yaml",
+    )
     cfg = resume_config(tmp_path, "learn", ["total_frames=200", "+env.variant_overrides.max_steps=150"])
     assert cfg.total_frames == 200 and cfg.env.variant_overrides.max_steps == 150 and cfg.resume == str(tmp_path)
     for bad in (["+env.nothing.x=1"], ["env.variant_overrides.max_steps=150"], ["typo_key=1"]):
@@ -164,20 +209,34 @@ def test_stop_at_success_ends_phase_1_as_finished_and_a_resume_can_ask_for_it(tm
     env = dict(os.environ, PYTHONWARNINGS="ignore")
     run_dir = tmp_path / "run"
     base = [*TINY, "logger.episode_window=4", "env.max_episode_steps=32"]
-    p = subprocess.run([str(BIN / "drs-learn"), *base, "total_frames=384", f"hydra.run.dir={run_dir}"],
-                       env=env, capture_output=True, text=True, timeout=600)
+    p = subprocess.run(
+        [str(BIN / "drs-learn"), *base, "total_frames=384", f"hydra.run.dir={run_dir}"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert p.returncode == 0, p.stderr[-3000:]
     assert "stopped_at_success" not in json.loads((run_dir / "summary.json").read_text())
-    cfg = OmegaConf.load(run_dir / "config.yaml")   # as a run saved before the key existed
+    cfg = OmegaConf.load(run_dir / "config.yaml")  # as a run saved before the key existed
     del cfg["stop_at_success"]
     OmegaConf.save(cfg, run_dir / "config.yaml")
-    p = subprocess.run([str(BIN / "drs-learn"), f"resume={run_dir}", "total_frames=100000", "stop_at_success=0.0"],
-                       env=env, capture_output=True, text=True, timeout=600)
+    p = subprocess.run(
+        [str(BIN / "drs-learn"), f"resume={run_dir}", "total_frames=100000", "stop_at_success=0.0"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert p.returncode == 0, p.stderr[-3000:]
     s = json.loads((run_dir / "summary.json").read_text())
-    assert s["interrupted"] is False and s["stopped_at_success"]["threshold"] == 0.0 and s["stopped_at_success"]["episodes"] == 4
-    assert 384 < s["frames"] <= 384 + 256 + 64, s["frames"]     # the first train-log row after the resume
-    assert _steps(run_dir / "eval.csv")[-1] == s["frames"]      # the final evaluation ran
+    assert (
+        s["interrupted"] is False
+        and s["stopped_at_success"]["threshold"] == 0.0
+        and s["stopped_at_success"]["episodes"] == 4
+    )
+    assert 384 < s["frames"] <= 384 + 256 + 64, s["frames"]  # the first train-log row after the resume
+    assert _steps(run_dir / "eval.csv")[-1] == s["frames"]  # the final evaluation ran
     assert (run_dir / "checkpoints" / "reward.pt").is_file()
-    assert run_state(run_dir, 100000) == "finished"             # a study does not resume it to total_frames
+    assert run_state(run_dir, 100000) == "finished"  # a study does not resume it to total_frames
     assert "stop_at_success=0 at" in p.stdout

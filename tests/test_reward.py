@@ -76,7 +76,14 @@ def test_reward_recomputed_on_replay_buffer_samples_with_current_weights():
     rb = ReplayBuffer(storage=LazyTensorStorage(100), batch_size=16, transform=r)
     n = 50
     data = TensorDict(
-        {"observation": torch.randn(n, OBS), "next": {"observation": torch.randn(n, OBS), "stage": torch.randint(0, 4, (n, 1)), "reward": torch.zeros(n, 1)}},
+        {
+            "observation": torch.randn(n, OBS),
+            "next": {
+                "observation": torch.randn(n, OBS),
+                "stage": torch.randint(0, 4, (n, 1)),
+                "reward": torch.zeros(n, 1),
+            },
+        },
         batch_size=[n],
     )
     rb.extend(data)

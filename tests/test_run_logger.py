@@ -1,4 +1,5 @@
 """The run's loggers are TorchRL ``Logger``s: wide CSV rows per stream, TensorBoard events, resume truncation."""
+
 from __future__ import annotations
 
 import csv

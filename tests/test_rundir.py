@@ -1,6 +1,7 @@
 """One writer per run directory, a full disk and the console's one-line errors (issue 48), without the simulator.
 
 The full-disk cases write on a real 1 MB tmpfs mounted in a private mount namespace (``unshare``)."""
+
 import json
 import os
 import shutil
@@ -37,8 +38,9 @@ def test_a_second_process_is_refused_naming_the_holder_until_it_lets_go(tmp_path
 
 def test_the_lock_of_a_dead_process_does_not_block(tmp_path):
     run = tmp_path / "run"
-    killed = subprocess.run([sys.executable, "-c", LOCK_IN_CHILD + "; import os; os.kill(os.getpid(), 9)", str(run)],
-                            timeout=120)
+    killed = subprocess.run(
+        [sys.executable, "-c", LOCK_IN_CHILD + "; import os; os.kill(os.getpid(), 9)", str(run)], timeout=120
+    )
     assert killed.returncode == -signal.SIGKILL
     assert (run / LOCK_NAME).read_text().strip()  # its pid is still written there
     lock_run_dir(run)
@@ -74,7 +76,11 @@ def test_the_lock_file_is_not_a_run_file(tmp_path):
 
     root = tmp_path / "study"
     (root / "a").mkdir(parents=True)
-    for name, text in {"train.csv": "step,frames\n1,1\n", "config.yaml": "total_frames: 10\n", LOCK_NAME: "123\n"}.items():
+    for name, text in {
+        "train.csv": "step,frames\n1,1\n",
+        "config.yaml": "total_frames: 10\n",
+        LOCK_NAME: "123\n",
+    }.items():
         (root / "a" / name).write_text(text)
     study = tmp_path / "s.yaml"
     study.write_text(f"root: {root}\napp: learn\nruns:\n  - {{name: a, args: [seed=0]}}\n")
@@ -102,7 +108,7 @@ def _on_small_filesystem(tmp_path: Path, code: str, size: str = "1m") -> dict:
     small = tmp_path / "small"
     small.mkdir()
     ns = ["unshare", "--mount"] if os.geteuid() == 0 else ["unshare", "--user", "--map-root-user", "--mount"]
-    script = f"mount -t tmpfs -o size={size} tmpfs {small} || exit 99; exec {sys.executable} -c \"$0\" {small}"
+    script = f'mount -t tmpfs -o size={size} tmpfs {small} || exit 99; exec {sys.executable} -c "$0" {small}'
     if shutil.which("unshare") is None:
         pytest.skip("no unshare(1): cannot mount a small filesystem to fill")
     p = subprocess.run([*ns, "sh", "-c", script, textwrap.dedent(code)], capture_output=True, text=True, timeout=300)
@@ -116,7 +122,9 @@ def test_a_full_disk_is_one_error_and_leaves_no_partial_files(tmp_path):
     """On a 1 MB filesystem: a 2 MB buffer snapshot is refused before its memory map could fault (SIGBUS),
     a checkpoint over an older one keeps the older one, and a text write that fills the disk is reported;
     no temporary file is left."""
-    out = _on_small_filesystem(tmp_path, """
+    out = _on_small_filesystem(
+        tmp_path,
+        """
         import json, os, sys, torch
         from pathlib import Path
         from tensordict import TensorDict
@@ -144,7 +152,8 @@ def test_a_full_disk_is_one_error_and_leaves_no_partial_files(tmp_path):
             res["text"] = str(exc)
         res["files"] = sorted(str(p.relative_to(d)) for p in d.rglob("*"))
         print(json.dumps(res))
-    """)
+    """,
+    )
     assert "not enough space to write the buffer snapshot" in out["buffer"] and "/state/replay" in out["buffer"]
     assert "MiB are free; free some space there" in out["buffer"]
     assert "the disk filled while writing the file" in out["checkpoint"] and "policy.pt" in out["checkpoint"]
@@ -194,8 +203,10 @@ def test_every_failure_of_a_wrapped_entry_function_exits_with_its_code(capsys, m
 
 
 def test_hydra_messages_become_one_line():
-    text = ("In 'learn': Could not find 'reward/vice'\n\nAvailable options in 'reward':\n\tdense\n\tdrs\n"
-            "Config search path:\n\tprovider=hydra, path=pkg://hydra.conf\n")
+    text = (
+        "In 'learn': Could not find 'reward/vice'\n\nAvailable options in 'reward':\n\tdense\n\tdrs\n"
+        "Config search path:\n\tprovider=hydra, path=pkg://hydra.conf\n"
+    )
     assert one_line(text) == "In 'learn': Could not find 'reward/vice'; Available options in 'reward': dense, drs"
 
 

@@ -1,4 +1,5 @@
 """Trajectory filing and truncation, the StageSampler's split and proportions, assembly."""
+
 import numpy as np
 import pytest
 import torch
@@ -145,10 +146,15 @@ def test_assembler_keeps_interleaved_workers_apart_by_trajectory_id():
 
     def batch(worker, ids, done, t0):
         n = len(ids)
-        return TensorDict({
-            "worker": torch.full((n, 1), worker), "t": torch.arange(t0, t0 + n)[:, None],
-            "collector": {"traj_ids": torch.tensor(ids)}, "next": {"done": torch.tensor(done, dtype=torch.bool)[:, None]},
-        }, batch_size=[n])
+        return TensorDict(
+            {
+                "worker": torch.full((n, 1), worker),
+                "t": torch.arange(t0, t0 + n)[:, None],
+                "collector": {"traj_ids": torch.tensor(ids)},
+                "next": {"done": torch.tensor(done, dtype=torch.bool)[:, None]},
+            },
+            batch_size=[n],
+        )
 
     assert asm.add(batch(0, [0, 0, 0], [0, 0, 0], 0)) == []
     assert asm.add(batch(1, [1, 1, 1], [0, 0, 0], 0)) == []
@@ -162,8 +168,14 @@ def test_assembler_keeps_interleaved_workers_apart_by_trajectory_id():
 
 def test_mixed_stages_in_one_extend_and_placeholders_point_at_filed_data():
     sb = StageBuffers(N, ["observation"], capacity=10, batch_size=4)
-    data = TensorDict({"observation": torch.arange(6.0)[:, None].expand(6, OBS), "stage": torch.zeros(6, 1, dtype=torch.long),
-                       TRAJ_STAGE_KEY: torch.tensor([3, 0, 0, 3, 1, 0])}, [6])
+    data = TensorDict(
+        {
+            "observation": torch.arange(6.0)[:, None].expand(6, OBS),
+            "stage": torch.zeros(6, 1, dtype=torch.long),
+            TRAJ_STAGE_KEY: torch.tensor([3, 0, 0, 3, 1, 0]),
+        },
+        [6],
+    )
     sb.extend(data)
     assert sb.stage_counts().tolist() == [3, 1, 0, 2]
     assert sb.stage_data(3)["observation"][:, 0].tolist() == [0.0, 3.0]

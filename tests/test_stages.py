@@ -1,4 +1,5 @@
 """Stage monotonicity and indexing (Eq. 2-3) and the StageIndicator transform."""
+
 import pytest
 import torch
 from tensordict import TensorDict

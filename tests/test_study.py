@@ -1,4 +1,5 @@
 """drs-study: runs named by a grid, dependencies, and re-invocation that skips what is finished."""
+
 import json
 import os
 import subprocess
@@ -21,32 +22,68 @@ def write(tmp_path, spec) -> Path:
 
 
 def test_grid_names_runs_and_passes_every_override(tmp_path):
-    root, runs = load_study(write(tmp_path, {
-        "root": str(tmp_path / "runs"), "common": ["env=turn_valve"],
-        "grid": {"seed": [0, 1], "algo.precision": ["fp32", "bf16"]},
-        "runs": [{"name": "reuse", "app": "reuse", "args": ["reward.checkpoint=<root>/x/reward.pt"], "needs": ["seed-0_precision-fp32"]}],
-    }))
-    assert [r.name for r in runs] == ["seed-0_precision-fp32", "seed-0_precision-bf16", "seed-1_precision-fp32",
-                                      "seed-1_precision-bf16", "reuse"]
+    root, runs = load_study(
+        write(
+            tmp_path,
+            {
+                "root": str(tmp_path / "runs"),
+                "common": ["env=turn_valve"],
+                "grid": {"seed": [0, 1], "algo.precision": ["fp32", "bf16"]},
+                "runs": [
+                    {
+                        "name": "reuse",
+                        "app": "reuse",
+                        "args": ["reward.checkpoint=<root>/x/reward.pt"],
+                        "needs": ["seed-0_precision-fp32"],
+                    }
+                ],
+            },
+        )
+    )
+    assert [r.name for r in runs] == [
+        "seed-0_precision-fp32",
+        "seed-0_precision-bf16",
+        "seed-1_precision-fp32",
+        "seed-1_precision-bf16",
+        "reuse",
+    ]
     assert runs[1].args == ["env=turn_valve", "seed=0", "algo.precision=bf16"]
     assert runs[-1].app == "reuse" and runs[-1].args[-1] == f"reward.checkpoint={tmp_path / 'runs'}/x/reward.pt"
 
 
-@pytest.mark.parametrize("spec,message", [
-    ({"grid": {"seed": [0]}}, "root"),
-    ({"root": "r"}, "no runs"),
-    ({"root": "r", "runs": [{"name": "a"}, {"name": "a"}]}, "appear twice"),
-    ({"root": "r", "runs": [{"name": "a", "needs": ["b"]}]}, "needs \\['b'\\]"),
-    ({"root": "r", "runs": [{"name": "a", "app": "train"}]}, "learn or reuse"),
-    ({"root": "r", "gird": {}}, "unknown keys"),
-    ({"root": "r", "runs": [{"name": "a_s0"}], "figures": {"main": {"groups": ["b"]}}}, "groups \\['b'\\] name no run.*its groups: a"),
-    ({"root": "r", "runs": [{"name": "a_s0"}], "figures": {"main": {"groups": []}}}, "non-empty 'groups'"),
-    ({"root": "r", "runs": [{"name": "a_s0"}], "figures": {"../x": {"groups": ["a"]}}}, "plain folder name"),
-    ({"root": "r", "runs": [{"name": "a_s0"}], "figures": {"m": {"groups": ["a"], "colour": 1}}}, "unknown keys \\['colour'\\]"),
-    ({"root": "r", "runs": [{"name": "a_s0"}], "figures": {"m": {"groups": ["a"], "labels": {"b": "B"}}}}, "labels for \\['b'\\]"),
-    ({"root": "r", "runs": [{"name": "a_s0"}, {"name": "b_s0"}], "figures": {"m": {"groups": ["a", "b"], "labels": {"a": "b"}}}},
-     "drawn as one"),
-])
+@pytest.mark.parametrize(
+    "spec,message",
+    [
+        ({"grid": {"seed": [0]}}, "root"),
+        ({"root": "r"}, "no runs"),
+        ({"root": "r", "runs": [{"name": "a"}, {"name": "a"}]}, "appear twice"),
+        ({"root": "r", "runs": [{"name": "a", "needs": ["b"]}]}, "needs \\['b'\\]"),
+        ({"root": "r", "runs": [{"name": "a", "app": "train"}]}, "learn or reuse"),
+        ({"root": "r", "gird": {}}, "unknown keys"),
+        (
+            {"root": "r", "runs": [{"name": "a_s0"}], "figures": {"main": {"groups": ["b"]}}},
+            "groups \\['b'\\] name no run.*its groups: a",
+        ),
+        ({"root": "r", "runs": [{"name": "a_s0"}], "figures": {"main": {"groups": []}}}, "non-empty 'groups'"),
+        ({"root": "r", "runs": [{"name": "a_s0"}], "figures": {"../x": {"groups": ["a"]}}}, "plain folder name"),
+        (
+            {"root": "r", "runs": [{"name": "a_s0"}], "figures": {"m": {"groups": ["a"], "colour": 1}}},
+            "unknown keys \\['colour'\\]",
+        ),
+        (
+            {"root": "r", "runs": [{"name": "a_s0"}], "figures": {"m": {"groups": ["a"], "labels": {"b": "B"}}}},
+            "labels for \\['b'\\]",
+        ),
+        (
+            {
+                "root": "r",
+                "runs": [{"name": "a_s0"}, {"name": "b_s0"}],
+                "figures": {"m": {"groups": ["a", "b"], "labels": {"a": "b"}}},
+            },
+            "drawn as one",
+        ),
+    ],
+)
 def test_bad_study_files_are_refused_by_name(tmp_path, spec, message):
     with pytest.raises(StudyError, match=message):
         load_study(write(tmp_path, spec))
@@ -82,18 +119,40 @@ def test_run_state_tells_finished_interrupted_and_broken_runs_apart(tmp_path):
 @pytest.mark.sim
 @pytest.mark.slow
 def test_a_study_runs_learn_then_reuse_and_a_second_call_skips_both(tmp_path):
-    tiny = ["total_frames=320", "algo.learning_starts=128", "algo.batch_size=32", "algo.hidden=[16,16]",
-            "reward.disc.batch_size=16", "logger.interval=128", "eval.interval=100000", "eval.episodes=0",
-            "checkpoint_interval=100000", "logger.tensorboard=false", "logger.progress_bar=false",
-            "+env.variant_overrides.goal_thresh=0.08"]
-    f = write(tmp_path, {"root": str(tmp_path / "runs"), "common": tiny, "runs": [
-        {"name": "learn", "args": ["seed=1"]},
-        {"name": "reuse", "app": "reuse", "needs": ["learn"],
-         "args": ["reward=drs", "reward.checkpoint=<root>/learn/checkpoints/reward.pt", "env.split=train"]},
-    ]})
+    tiny = [
+        "total_frames=320",
+        "algo.learning_starts=128",
+        "algo.batch_size=32",
+        "algo.hidden=[16,16]",
+        "reward.disc.batch_size=16",
+        "logger.interval=128",
+        "eval.interval=100000",
+        "eval.episodes=0",
+        "checkpoint_interval=100000",
+        "logger.tensorboard=false",
+        "logger.progress_bar=false",
+        "+env.variant_overrides.goal_thresh=0.08",
+    ]
+    f = write(
+        tmp_path,
+        {
+            "root": str(tmp_path / "runs"),
+            "common": tiny,
+            "runs": [
+                {"name": "learn", "args": ["seed=1"]},
+                {
+                    "name": "reuse",
+                    "app": "reuse",
+                    "needs": ["learn"],
+                    "args": ["reward=drs", "reward.checkpoint=<root>/learn/checkpoints/reward.pt", "env.split=train"],
+                },
+            ],
+        },
+    )
     p = subprocess.run([str(BIN / "drs-study"), str(f), "--jobs", "2"], capture_output=True, text=True, timeout=600)
-    assert p.returncode == 0, p.stdout + p.stderr + "".join(
-        x.read_text()[-1500:] for x in (tmp_path / "runs" / "logs").glob("*.log"))
+    assert p.returncode == 0, (
+        p.stdout + p.stderr + "".join(x.read_text()[-1500:] for x in (tmp_path / "runs" / "logs").glob("*.log"))
+    )
     assert "all 2 runs finished" in p.stdout
     for name in ("learn", "reuse"):
         assert run_state(tmp_path / "runs" / name) == "finished"
@@ -102,18 +161,24 @@ def test_a_study_runs_learn_then_reuse_and_a_second_call_skips_both(tmp_path):
     assert p.returncode == 0 and p.stdout.count("finished, skipped") == 2
 
 
-def _fake_run(d: Path, reward: str, seed: int, success: list[float], frames: int, *, app="reuse", complete=False,
-              split="test"):
+def _fake_run(
+    d: Path, reward: str, seed: int, success: list[float], frames: int, *, app="reuse", complete=False, split="test"
+):
     """A run directory as drs-learn / drs-reuse leave it (the report reads files only)."""
     (d / "checkpoints" / "state").mkdir(parents=True)
     if complete:
         (d / "checkpoints" / "state" / "COMPLETE").write_text("")
-    (d / "config.yaml").write_text(f"phase: {app}\nseed: {seed}\ntotal_frames: {frames}\nreward:\n  name: {reward}\n"
-                                   f"  checkpoint: {Path.cwd().resolve()}/results/x/reward.pt\nenv:\n  split: {split}\n")
+    (d / "config.yaml").write_text(
+        f"phase: {app}\nseed: {seed}\ntotal_frames: {frames}\nreward:\n  name: {reward}\n"
+        f"  checkpoint: {Path.cwd().resolve()}/results/x/reward.pt\nenv:\n  split: {split}\n"
+    )
     steps = [1000 * (i + 1) for i in range(len(success))]
-    (d / "eval.csv").write_text("step,episodes,success_rate,reach_stage_1\n"
-                                + "".join(f"{s},10,{y},{y}\n" for s, y in zip(steps, success)))
-    (d / "train.csv").write_text("step,success_rate,reach_stage_1\n" + "".join(f"{s},{y},{y}\n" for s, y in zip(steps, success)))
+    (d / "eval.csv").write_text(
+        "step,episodes,success_rate,reach_stage_1\n" + "".join(f"{s},10,{y},{y}\n" for s, y in zip(steps, success))
+    )
+    (d / "train.csv").write_text(
+        "step,success_rate,reach_stage_1\n" + "".join(f"{s},{y},{y}\n" for s, y in zip(steps, success))
+    )
     if app == "learn":
         (d / "checkpoints" / "reward.pt").write_bytes(b"reward")
         (d / "checkpoints" / "policy.pt").write_bytes(b"policy")
@@ -122,30 +187,57 @@ def _fake_run(d: Path, reward: str, seed: int, success: list[float], frames: int
 def test_report_copies_the_record_and_compares_by_run_name(tmp_path, capsys):
     from drs_torchrl.study import group_name, main
 
-    assert [group_name(n) for n in ("drs_s0", "one_stage_s12", "seed-1", "precision-bf16_seed-1", "dense-train_s0",
-                                    "seed-0_precision-fp32", "a-1_seed-2_b-3")] == \
-        ["drs", "one_stage", "seed-1", "precision-bf16", "dense-train", "precision-fp32", "a-1_b-3"]
+    assert [
+        group_name(n)
+        for n in (
+            "drs_s0",
+            "one_stage_s12",
+            "seed-1",
+            "precision-bf16_seed-1",
+            "dense-train_s0",
+            "seed-0_precision-fp32",
+            "a-1_seed-2_b-3",
+        )
+    ] == ["drs", "one_stage", "seed-1", "precision-bf16", "dense-train", "precision-fp32", "a-1_b-3"]
     root = tmp_path / "runs"
-    study = write(tmp_path, {"root": str(root), "app": "reuse", "common": ["total_frames=3000"], "runs": [
-        {"name": "learn_s0", "app": "learn", "args": []},
-        {"name": "drs_s0", "args": []}, {"name": "drs_s1", "args": []},
-        {"name": "one_stage_s0", "args": []},   # reward.name drs too: grouped by its name, not its config
-        {"name": "sparse_s0", "args": []},
-        {"name": "dense-train_s0", "args": ["env.split=train"]}]})   # the baseline checked where the reward was learned
+    study = write(
+        tmp_path,
+        {
+            "root": str(root),
+            "app": "reuse",
+            "common": ["total_frames=3000"],
+            "runs": [
+                {"name": "learn_s0", "app": "learn", "args": []},
+                {"name": "drs_s0", "args": []},
+                {"name": "drs_s1", "args": []},
+                {"name": "one_stage_s0", "args": []},  # reward.name drs too: grouped by its name, not its config
+                {"name": "sparse_s0", "args": []},
+                {"name": "dense-train_s0", "args": ["env.split=train"]},
+            ],
+        },
+    )  # the baseline checked where the reward was learned
     _fake_run(root / "learn_s0", "drs", 0, [0.0, 1.0, 1.0], 3000, app="learn", complete=True, split="train")
     _fake_run(root / "dense-train_s0", "dense", 0, [0.5], 1000, complete=True, split="train")
     _fake_run(root / "drs_s0", "drs", 0, [0.0, 0.6, 1.0], 3000, complete=True)
-    _fake_run(root / "drs_s1", "drs", 1, [0.2, 0.4], 3000, complete=True)   # still running (or interrupted)
+    _fake_run(root / "drs_s1", "drs", 1, [0.2, 0.4], 3000, complete=True)  # still running (or interrupted)
     _fake_run(root / "one_stage_s0", "drs", 0, [0.0, 0.0, 0.0], 3000)
     # sparse_s0 has not started
     for name in ("drs_s0", "one_stage_s0", "learn_s0"):
         (root / name / "summary.json").write_text(json.dumps({"frames": 3000, "interrupted": False}))
     # finished early on its own criterion (stop_at_success), 1k steps
-    (root / "dense-train_s0" / "summary.json").write_text(json.dumps({"frames": 1000, "interrupted": False, "stopped_at_success": True}))
+    (root / "dense-train_s0" / "summary.json").write_text(
+        json.dumps({"frames": 1000, "interrupted": False, "stopped_at_success": True})
+    )
     out = tmp_path / "results"
     assert main([str(study), "--report", str(out)]) == 0
     # the record, never the training state; the checkout's absolute path is gone from the copies
-    assert sorted(p.name for p in (out / "run_files").iterdir()) == ["dense-train_s0", "drs_s0", "drs_s1", "learn_s0", "one_stage_s0"]
+    assert sorted(p.name for p in (out / "run_files").iterdir()) == [
+        "dense-train_s0",
+        "drs_s0",
+        "drs_s1",
+        "learn_s0",
+        "one_stage_s0",
+    ]
     assert not list(out.rglob("state")) and (out / "run_files" / "learn_s0" / "reward.pt").read_bytes() == b"reward"
     assert "checkpoint: results/x/reward.pt" in (out / "run_files" / "drs_s0" / "config.yaml").read_text()
     status = (out / "status.md").read_text()
@@ -170,11 +262,25 @@ def test_report_draws_the_study_files_figures_with_their_groups_order_and_labels
     from drs_torchrl.study import main
 
     root = tmp_path / "runs"
-    study = write(tmp_path, {"root": str(root), "app": "reuse", "common": ["total_frames=3000"], "runs": [
-        {"name": "drs_s0", "args": []}, {"name": "drs_s1", "args": []}, {"name": "sparse_s0", "args": []},
-        {"name": "ablation_s0", "args": []}, {"name": "gail_s0", "args": []}],
-        "figures": {"main": {"title": "held-out variants", "groups": ["sparse", "drs", "gail"], "labels": {"drs": "DrS"}},
-                    "ablations": {"groups": ["drs", "ablation"]}}})
+    study = write(
+        tmp_path,
+        {
+            "root": str(root),
+            "app": "reuse",
+            "common": ["total_frames=3000"],
+            "runs": [
+                {"name": "drs_s0", "args": []},
+                {"name": "drs_s1", "args": []},
+                {"name": "sparse_s0", "args": []},
+                {"name": "ablation_s0", "args": []},
+                {"name": "gail_s0", "args": []},
+            ],
+            "figures": {
+                "main": {"title": "held-out variants", "groups": ["sparse", "drs", "gail"], "labels": {"drs": "DrS"}},
+                "ablations": {"groups": ["drs", "ablation"]},
+            },
+        },
+    )
     _fake_run(root / "drs_s0", "drs", 0, [0.0, 0.6, 1.0], 3000, complete=True)
     _fake_run(root / "drs_s1", "drs", 1, [0.0, 0.2, 0.6], 3000, complete=True)
     _fake_run(root / "sparse_s0", "sparse", 0, [0.0, 0.0, 0.0], 3000, complete=True)
@@ -188,7 +294,7 @@ def test_report_draws_the_study_files_figures_with_their_groups_order_and_labels
     md = (out / "figures" / "main" / "compare.md").read_text()
     assert md.startswith("**held-out variants**")
     table = [line for line in md.splitlines() if line.startswith("| ") and "(" in line and "runs (seeds)" not in line]
-    assert [line.split(" | ")[0] for line in table[:2]] == ["| sparse", "| DrS"]   # the figure's order and labels
+    assert [line.split(" | ")[0] for line in table[:2]] == ["| sparse", "| DrS"]  # the figure's order and labels
     assert "| DrS | 2 (0, 1) |" in md and "ablation" not in md.split("Runs:")[0]
     assert (out / "figures" / "main" / "compare.png").is_file()
     abl = (out / "figures" / "ablations" / "compare.md").read_text()
@@ -202,28 +308,58 @@ def test_a_fresh_checkout_skips_what_its_record_holds_and_reuses_its_rewards(tmp
     from drs_torchrl.study import load_record, main, resolve_args, study_state
 
     root, out = tmp_path / "runs", tmp_path / "results"
-    study = write(tmp_path, {"root": str(root), "app": "reuse", "record": str(out), "common": ["total_frames=3000"],
-                             "runs": [{"name": "learn_s0", "app": "learn", "args": []},
-                                      {"name": "drs_s0", "args": ["reward.checkpoint=<reward:learn_s0>", "init_from=<policy:learn_s0>"],
-                                       "needs": ["learn_s0"]},
-                                      {"name": "sparse_s0", "args": []}, {"name": "dense_s0", "args": []}]})
+    study = write(
+        tmp_path,
+        {
+            "root": str(root),
+            "app": "reuse",
+            "record": str(out),
+            "common": ["total_frames=3000"],
+            "runs": [
+                {"name": "learn_s0", "app": "learn", "args": []},
+                {
+                    "name": "drs_s0",
+                    "args": ["reward.checkpoint=<reward:learn_s0>", "init_from=<policy:learn_s0>"],
+                    "needs": ["learn_s0"],
+                },
+                {"name": "sparse_s0", "args": []},
+                {"name": "dense_s0", "args": []},
+            ],
+        },
+    )
     _, runs = load_study(study)
     record = load_record(study)
     assert record == out
     by = {r.name: r for r in runs}
-    assert resolve_args(by["drs_s0"], root, record) == ["total_frames=3000", f"reward.checkpoint={root}/learn_s0/checkpoints/reward.pt",
-                                                        f"init_from={root}/learn_s0/checkpoints/policy.pt"]
-    for name, frames in (("learn_s0", 3000), ("sparse_s0", 2000)):   # sparse_s0 was interrupted, its state lost
-        _fake_run(root / name, "drs" if name == "learn_s0" else "sparse", 0, [0.0, 0.5, 1.0][: frames // 1000], 3000,
-                  app="learn" if name == "learn_s0" else "reuse")
+    assert resolve_args(by["drs_s0"], root, record) == [
+        "total_frames=3000",
+        f"reward.checkpoint={root}/learn_s0/checkpoints/reward.pt",
+        f"init_from={root}/learn_s0/checkpoints/policy.pt",
+    ]
+    for name, frames in (("learn_s0", 3000), ("sparse_s0", 2000)):  # sparse_s0 was interrupted, its state lost
+        _fake_run(
+            root / name,
+            "drs" if name == "learn_s0" else "sparse",
+            0,
+            [0.0, 0.5, 1.0][: frames // 1000],
+            3000,
+            app="learn" if name == "learn_s0" else "reuse",
+        )
         (root / name / "summary.json").write_text(json.dumps({"frames": frames, "interrupted": frames < 3000}))
     assert main([str(study), "--report", str(out)]) == 0
     import shutil
-    shutil.rmtree(root)   # the next session's fresh checkout: the records only
-    assert [study_state(root, record, by[n]) for n in ("learn_s0", "drs_s0", "sparse_s0", "dense_s0")] == \
-        ["recorded", "new", "new", "new"]
-    assert resolve_args(by["drs_s0"], root, record)[1:] == [f"reward.checkpoint={out}/run_files/learn_s0/reward.pt",
-                                                            f"init_from={out}/run_files/learn_s0/policy.pt"]
+
+    shutil.rmtree(root)  # the next session's fresh checkout: the records only
+    assert [study_state(root, record, by[n]) for n in ("learn_s0", "drs_s0", "sparse_s0", "dense_s0")] == [
+        "recorded",
+        "new",
+        "new",
+        "new",
+    ]
+    assert resolve_args(by["drs_s0"], root, record)[1:] == [
+        f"reward.checkpoint={out}/run_files/learn_s0/reward.pt",
+        f"init_from={out}/run_files/learn_s0/policy.pt",
+    ]
     # the record is re-read, not overwritten: learn_s0 stays in the record and in the comparison
     assert main([str(study), "--report", str(out)]) == 0
     status = (out / "status.md").read_text()
@@ -274,10 +410,19 @@ def test_a_run_another_study_call_is_training_is_neither_restarted_nor_deleted(t
 
 def test_a_reward_reference_must_be_among_the_runs_needs(tmp_path):
     with pytest.raises(StudyError, match="does not list learn in its needs"):
-        load_study(write(tmp_path, {"root": "r", "runs": [{"name": "learn"},
-                                                          {"name": "a", "args": ["reward.checkpoint=<reward:learn>"]}]}))
+        load_study(
+            write(
+                tmp_path,
+                {"root": "r", "runs": [{"name": "learn"}, {"name": "a", "args": ["reward.checkpoint=<reward:learn>"]}]},
+            )
+        )
     with pytest.raises(StudyError, match="<policy:learn> but does not list"):
-        load_study(write(tmp_path, {"root": "r", "runs": [{"name": "learn"}, {"name": "a", "args": ["init_from=<policy:learn>"]}]}))
+        load_study(
+            write(
+                tmp_path,
+                {"root": "r", "runs": [{"name": "learn"}, {"name": "a", "args": ["init_from=<policy:learn>"]}]},
+            )
+        )
 
 
 def test_a_run_with_a_bad_override_or_missing_file_stops_the_study_before_anything_starts(tmp_path, capsys):
@@ -285,13 +430,18 @@ def test_a_run_with_a_bad_override_or_missing_file_stops_the_study_before_anythi
 
     good = {"name": "ok", "args": ["total_frames=1000"]}
     reuse = {"name": "reuse", "app": "reuse", "args": ["reward=drs", "reward.checkpoint=<reward:ok>"], "needs": ["ok"]}
-    spec = {"root": str(tmp_path / "runs"), "common": ["env=turn_valve"], "runs": [
-        good, reuse,  # a checkpoint another run will write need not exist yet
-        {"name": "typo", "args": ["algo.gama=0.9"]},
-        {"name": "no_demos", "args": [f"demos.path={tmp_path / 'missing.demos'}"]},
-        {"name": "bad_value", "args": ["stop_at_success=2"]},
-        {"name": "no_ablation", "args": ["+ablation=nope"]},
-    ]}
+    spec = {
+        "root": str(tmp_path / "runs"),
+        "common": ["env=turn_valve"],
+        "runs": [
+            good,
+            reuse,  # a checkpoint another run will write need not exist yet
+            {"name": "typo", "args": ["algo.gama=0.9"]},
+            {"name": "no_demos", "args": [f"demos.path={tmp_path / 'missing.demos'}"]},
+            {"name": "bad_value", "args": ["stop_at_success=2"]},
+            {"name": "no_ablation", "args": ["+ablation=nope"]},
+        ],
+    }
     f = write(tmp_path, spec)
     assert main([str(f), "--check"]) == 2
     out = capsys.readouterr().out
@@ -302,7 +452,9 @@ def test_a_run_with_a_bad_override_or_missing_file_stops_the_study_before_anythi
     # running the study refuses as a whole, names every bad run, and creates nothing
     assert main([str(f)]) == 2
     err = capsys.readouterr().err
-    assert all(f"run {n}:" in err for n in ("typo", "no_demos", "bad_value", "no_ablation")) and "nothing started" in err
+    assert (
+        all(f"run {n}:" in err for n in ("typo", "no_demos", "bad_value", "no_ablation")) and "nothing started" in err
+    )
     assert not (tmp_path / "runs").exists()
     # the good runs alone pass the check
     assert main([str(f), "--check", "--only", "ok", "reuse"]) == 0
@@ -314,23 +466,39 @@ def test_status_counts_the_env_steps_and_hours_a_study_has_left(tmp_path, capsys
     from drs_torchrl.study import main, work_left
 
     root, out = tmp_path / "runs", tmp_path / "results"
-    study = write(tmp_path, {"root": str(root), "app": "reuse", "record": str(out),
-                             "runs": [{"name": "done_s0", "args": ["total_frames=3000"]},
-                                      {"name": "half_s0", "args": ["total_frames=4000"]},
-                                      {"name": "new_s0", "args": ["total_frames=9000"]},
-                                      {"name": "learn_s0", "app": "learn", "args": ["total_frames=2000"]}]})
+    study = write(
+        tmp_path,
+        {
+            "root": str(root),
+            "app": "reuse",
+            "record": str(out),
+            "runs": [
+                {"name": "done_s0", "args": ["total_frames=3000"]},
+                {"name": "half_s0", "args": ["total_frames=4000"]},
+                {"name": "new_s0", "args": ["total_frames=9000"]},
+                {"name": "learn_s0", "app": "learn", "args": ["total_frames=2000"]},
+            ],
+        },
+    )
     _fake_run(root / "done_s0", "dense", 0, [0.0, 0.5, 1.0], 3000, complete=True)
-    (root / "done_s0" / "summary.json").write_text(json.dumps({"frames": 3000, "interrupted": False, "env_steps_per_s": 99.0}))
-    _fake_run(root / "half_s0", "sparse", 0, [0.0], 4000, complete=True)   # resumable at 1000 of 4000
+    (root / "done_s0" / "summary.json").write_text(
+        json.dumps({"frames": 3000, "interrupted": False, "env_steps_per_s": 99.0})
+    )
+    _fake_run(root / "half_s0", "sparse", 0, [0.0], 4000, complete=True)  # resumable at 1000 of 4000
     for d, v in (("done_s0", 2.0), ("half_s0", 1.0)):
         lines = (root / d / "train.csv").read_text().splitlines()
-        (root / d / "train.csv").write_text("\n".join([lines[0] + ",env_steps_per_s"] + [x + f",{v}" for x in lines[1:]]) + "\n")
+        (root / d / "train.csv").write_text(
+            "\n".join([lines[0] + ",env_steps_per_s"] + [x + f",{v}" for x in lines[1:]]) + "\n"
+        )
     _, runs = load_study(study)
     states = {"done_s0": "finished", "half_s0": "resumable", "new_s0": "new", "learn_s0": "new"}
     line = work_left(root, None, runs, states, jobs=2)
     # 3000 + 9000 + 2000 = 14,000 steps at the median of 2.0 and 1.0 env steps/s (the upper one of two): 7000 s
     assert line.startswith("left: 3 of 4 runs, at most 14,000 env steps (phase-1 runs stop early")
-    assert "at 2.0 env steps/s per run (median of 2 run directories here) about 1.9 h of runs, 58 min with --jobs 2" in line
+    assert (
+        "at 2.0 env steps/s per run (median of 2 run directories here) about 1.9 h of runs, 58 min with --jobs 2"
+        in line
+    )
     assert main([str(study), "--status"]) == 0
     assert capsys.readouterr().out.strip().splitlines()[-1].startswith("left: 3 of 4 runs, at most 14,000 env steps")
     # a fresh checkout: no run directories, the speed comes from the record's summaries
@@ -338,7 +506,10 @@ def test_status_counts_the_env_steps_and_hours_a_study_has_left(tmp_path, capsys
     (out / "run_files" / "done_s0" / "summary.json").write_text(json.dumps({"env_steps_per_s": 50.0}))
     states = {"done_s0": "recorded", "half_s0": "new", "new_s0": "new", "learn_s0": "new"}
     line = work_left(tmp_path / "elsewhere", out, runs, states, jobs=1)
-    assert "at most 15,000 env steps" in line and "at 50.0 env steps/s per run (median of 1 recorded runs) about 5 min of runs" in line
+    assert (
+        "at most 15,000 env steps" in line
+        and "at 50.0 env steps/s per run (median of 1 recorded runs) about 5 min of runs" in line
+    )
     assert work_left(root, None, runs, dict.fromkeys(states, "finished")) == "left: nothing, all 4 runs done"
 
 
@@ -349,6 +520,6 @@ def test_every_committed_study_file_loads_with_its_figures():
     files = sorted((Path(__file__).parents[1] / "results").rglob("study.yaml"))
     assert len(files) >= 2
     for f in files:
-        load_figures(f)   # raises StudyError naming what is wrong
+        load_figures(f)  # raises StudyError naming what is wrong
     pick = {fig.name: fig for fig in load_figures(Path(__file__).parents[1] / "results/reuse/pick_cube/study.yaml")}
     assert pick["main"].groups[:4] == ["drs-sacdemos", "dense", "semi_sparse", "sparse"]

@@ -7,6 +7,7 @@ own pieces: ``StageBuffers`` (one stage: success / failure rings, finite), ``Dis
 ``DrSReward`` reading a one-hot of (s, a); a Q-learning agent trains on the learned reward, with
 exploration annealed to zero (the analysis assumes the policy converges).
 """
+
 from collections import deque
 
 import numpy as np
@@ -110,7 +111,11 @@ def _run_tabular_drs():
                 opt.step()
         # Q-learning on the learned reward, recomputed from the current discriminator (Algorithm 1)
         with torch.no_grad():
-            r_sa = reward.combine(reward.discriminators(all_sa), torch.zeros(S * A, 1, dtype=torch.long)).view(S, A).numpy()
+            r_sa = (
+                reward.combine(reward.discriminators(all_sa), torch.zeros(S * A, 1, dtype=torch.long))
+                .view(S, A)
+                .numpy()
+            )
         batch = replay[rng.integers(min(n_replay, len(replay)), size=256)]
         for si, a, s2i, done in batch:
             target = r_goal if done else r_sa[si, a] + gamma * Q[s2i].max()

@@ -1,6 +1,7 @@
 """Every reward transform of the slot through TorchRL's standard transform checks: one env, inside and
 outside a batched env (serial and parallel), composed, on a replay buffer, on a bare TensorDict and in
 a model (the cases of TorchRL's own transform tests), on real MuJoCo HalfCheetah."""
+
 import functools
 
 import pytest
@@ -8,7 +9,7 @@ import torch
 from tensordict import TensorDict
 from torch import nn
 from torchrl.data import LazyTensorStorage, ReplayBuffer
-from torchrl.envs import ParallelEnv, SerialEnv, TransformedEnv
+from torchrl.envs import ParallelEnv, SerialEnv
 from torchrl.envs.transforms import Compose, RewardScaling
 from torchrl.envs.utils import check_env_specs
 
@@ -29,8 +30,9 @@ def _vice():
 
 
 def _gail_stages():
-    return ClassifierReward(["observation", "stage_indicators"], SHAPES, 1, use_action=True, action_dim=6,
-                            stage_weight=1.0, method="gail")
+    return ClassifierReward(
+        ["observation", "stage_indicators"], SHAPES, 1, use_action=True, action_dim=6, stage_weight=1.0, method="gail"
+    )
 
 
 def _dense_shift():
@@ -41,7 +43,13 @@ def _semi_sparse():
     return SemiSparseReward(1, offset=-1.0)
 
 
-MAKERS = {"drs": _drs, "vice_raq": _vice, "gail_stages": _gail_stages, "dense_shift": _dense_shift, "semi_sparse": _semi_sparse}
+MAKERS = {
+    "drs": _drs,
+    "vice_raq": _vice,
+    "gail_stages": _gail_stages,
+    "dense_shift": _dense_shift,
+    "semi_sparse": _semi_sparse,
+}
 LEARNED = ["drs", "vice_raq", "gail_stages"]
 
 
@@ -118,8 +126,17 @@ def test_composed_on_a_replay_buffer_without_env_and_in_a_model(name):
     assert torch.allclose(model(data.clone())["next", "reward"], expected)
     # a missing input is named
     with pytest.raises(KeyError, match="observation"):
-        reward.clone()(TensorDict({"next": data["next"].exclude("observation"), "action": data["action"],
-                                   "observation": data["observation"], "stage": data["stage"]}, batch_size=data.shape))
+        reward.clone()(
+            TensorDict(
+                {
+                    "next": data["next"].exclude("observation"),
+                    "action": data["action"],
+                    "observation": data["observation"],
+                    "stage": data["stage"],
+                },
+                batch_size=data.shape,
+            )
+        )
 
 
 @pytest.mark.parametrize("name", LEARNED)

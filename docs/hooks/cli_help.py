@@ -6,6 +6,7 @@ Nothing is run: an argparse script's entry point is called with ``ArgumentParser
 function that records the parser's help and stops the call; a Hydra app prints Hydra's ``--help``, which
 composes the config without calling the app; any other entry point is described by its docstring.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -74,8 +75,9 @@ def main() -> None:
         out[name] = {"kind": kind}
         if kind == "Hydra app":  # Hydra's --help composes the config and returns; the app never runs
             code = f"import sys; sys.argv = [{name!r}, '--help']; from {module} import {func} as f; f()"
-            procs[name] = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
-                                           stderr=subprocess.PIPE, text=True)
+            procs[name] = subprocess.Popen(
+                [sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+            )
     for name, target in scripts.items():
         info = out[name]
         module, func = target.split(":")

@@ -14,6 +14,7 @@ It also points ``pymdownx.snippets`` at the repository root, so that pages can i
 A script whose help cannot be produced, a missing ``conf/`` or a referenced figure that does not exist is a
 warning, which ``mkdocs build --strict`` turns into a failed build.
 """
+
 from __future__ import annotations
 
 import json
@@ -58,8 +59,14 @@ def _cli_page(root: Path) -> str:
     scripts = _scripts(root)
     env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", PYTHONPATH=str(root / "src"))
     try:
-        proc = subprocess.run([sys.executable, str(HERE / "cli_help.py"), json.dumps(scripts)], cwd=root, env=env,
-                              capture_output=True, text=True, timeout=240)
+        proc = subprocess.run(
+            [sys.executable, str(HERE / "cli_help.py"), json.dumps(scripts)],
+            cwd=root,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=240,
+        )
         helps = json.loads(proc.stdout.strip().splitlines()[-1]) if proc.stdout.strip() else {}
         if proc.returncode != 0 and not helps:
             log.warning("cli reference: cli_help.py failed (%s): %s", proc.returncode, proc.stderr[-2000:])
@@ -83,7 +90,9 @@ def _cli_page(root: Path) -> str:
     for name, target in scripts.items():
         info = helps.get(name)
         if not info or not info.get("help"):
-            log.warning("cli reference: no help for %s (%s): %s", name, target, (info or {}).get("error", "not collected"))
+            log.warning(
+                "cli reference: no help for %s (%s): %s", name, target, (info or {}).get("error", "not collected")
+            )
             continue
         text = re.sub(r"^\S+ is powered by Hydra\.", f"{name} is powered by Hydra.", info["help"].strip("\n"))
         lines += [f"## {name}", "", f"`{target}`: {info['kind']}.", "", "```text", text.rstrip(), "```", ""]
@@ -114,7 +123,12 @@ def _config_page(root: Path) -> str:
         options = sorted(group.glob("*.yaml"))
         if not options:
             continue
-        lines += [f"## {group.name}", "", "Options: " + ", ".join(f"`{group.name}={o.stem}`" for o in options) + ".", ""]
+        lines += [
+            f"## {group.name}",
+            "",
+            "Options: " + ", ".join(f"`{group.name}={o.stem}`" for o in options) + ".",
+            "",
+        ]
         for f in options:
             lines += [f"### {group.name}={f.stem}", "", "```yaml", f.read_text().rstrip(), "```", ""]
     return "\n".join(lines)

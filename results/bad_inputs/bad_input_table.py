@@ -9,6 +9,7 @@ or reuses a run works on its own copy of one real run. The table records the exi
 line, whether that line is all the user got (no traceback) and whether the files of an existing run
 are unchanged (``.drs-lock``, the run directory's lock, is not a run file and is left out).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -29,14 +30,23 @@ import yaml
 
 ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
-TINY = ["total_frames=256", "algo.learning_starts=128", "algo.batch_size=32", "eval.episodes=0",
-        "logger.progress_bar=false", "logger.tensorboard=false"]
+TINY = [
+    "total_frames=256",
+    "algo.learning_starts=128",
+    "algo.batch_size=32",
+    "eval.episodes=0",
+    "logger.progress_bar=false",
+    "logger.tensorboard=false",
+]
 LOCK = ".drs-lock"
 
 
 def digest(d: Path) -> dict:
-    return {str(p.relative_to(d)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in d.rglob("*") if p.is_file() and p.name != LOCK}
+    return {
+        str(p.relative_to(d)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in d.rglob("*")
+        if p.is_file() and p.name != LOCK
+    }
 
 
 @dataclass
@@ -60,18 +70,28 @@ def _exe(cmd: list[str]) -> list[str]:
 def two_writers(case: Case, d: Path) -> tuple[int, str, bool]:
     """Two drs-learn started at once into one directory: the second is refused while the first writes."""
     run = d / "run"
-    first = subprocess.Popen(_exe(["drs-learn", *TINY, f"hydra.run.dir={run}"]), cwd=d, stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True)
+    first = subprocess.Popen(
+        _exe(["drs-learn", *TINY, f"hydra.run.dir={run}"]),
+        cwd=d,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     t0 = time.time()
     while not ((run / LOCK).is_file() and (run / LOCK).read_text().strip()) and time.time() - t0 < 120:
         time.sleep(0.1)
-    second = subprocess.run(_exe(["drs-learn", *TINY, "seed=1", f"hydra.run.dir={run}"]), cwd=d, capture_output=True,
-                            text=True, timeout=600)
+    second = subprocess.run(
+        _exe(["drs-learn", *TINY, "seed=1", f"hydra.run.dir={run}"]), cwd=d, capture_output=True, text=True, timeout=600
+    )
     first.communicate(timeout=600)
     rows = (run / "train.csv").read_text().splitlines() if (run / "train.csv").is_file() else []
-    one_run = (first.returncode == 0 and yaml.safe_load((run / "config.yaml").read_text())["seed"] == 0
-               and "seed=1" not in (run / ".hydra" / "overrides.yaml").read_text()
-               and sum(r.startswith("step,") for r in rows) == 1 and not list(run.glob(".hydra-*-*")))
+    one_run = (
+        first.returncode == 0
+        and yaml.safe_load((run / "config.yaml").read_text())["seed"] == 0
+        and "seed=1" not in (run / ".hydra" / "overrides.yaml").read_text()
+        and sum(r.startswith("step,") for r in rows) == 1
+        and not list(run.glob(".hydra-*-*"))
+    )
     return second.returncode, second.stderr, one_run
 
 
@@ -81,11 +101,23 @@ def disk_full(case: Case, d: Path) -> tuple[int, str, bool]:
     mnt, out = d / "small", d / "out"
     mnt.mkdir()
     out.mkdir()
-    args = ["total_frames=4096", "algo.learning_starts=4096", "algo.batch_size=32", "algo.hidden=[32,32]",
-            "eval.episodes=0", "checkpoint_interval=1024", "logger.interval=512", "stop_at_success=null",
-            "logger.progress_bar=false", "logger.tensorboard=false", f"hydra.run.dir={mnt / 'run'}"]
-    script = (f"mount -t tmpfs -o size=3m tmpfs {mnt} || exit 99; {' '.join(map(repr, _exe(['drs-learn', *args])))}; "
-              f"rc=$?; cp -a {mnt / 'run'} {out}/; exit $rc")
+    args = [
+        "total_frames=4096",
+        "algo.learning_starts=4096",
+        "algo.batch_size=32",
+        "algo.hidden=[32,32]",
+        "eval.episodes=0",
+        "checkpoint_interval=1024",
+        "logger.interval=512",
+        "stop_at_success=null",
+        "logger.progress_bar=false",
+        "logger.tensorboard=false",
+        f"hydra.run.dir={mnt / 'run'}",
+    ]
+    script = (
+        f"mount -t tmpfs -o size=3m tmpfs {mnt} || exit 99; {' '.join(map(repr, _exe(['drs-learn', *args])))}; "
+        f"rc=$?; cp -a {mnt / 'run'} {out}/; exit $rc"
+    )
     ns = ["unshare", "--mount"] if os.geteuid() == 0 else ["unshare", "--user", "--map-root-user", "--mount"]
     p = subprocess.run([*ns, "sh", "-c", script], cwd=d, capture_output=True, text=True, timeout=600)
     if p.returncode == 99 or "unshare:" in p.stderr:  # a container without CAP_SYS_ADMIN, no user namespaces
@@ -119,7 +151,9 @@ def cases(work: Path, good_run: Path) -> list[Case]:
     ck = "{good}/checkpoints"
     return [
         Case("reward checkpoint from another family", [*R, f"reward.checkpoint={work / 'other_family.pt'}"]),
-        Case("reward checkpoint with another observation layout", [*R, f"reward.checkpoint={work / 'other_layout.pt'}"]),
+        Case(
+            "reward checkpoint with another observation layout", [*R, f"reward.checkpoint={work / 'other_layout.pt'}"]
+        ),
         Case("reward checkpoint with another number of stages", [*R, f"reward.checkpoint={work / 'two_stages.pt'}"]),
         Case("truncated reward checkpoint", [*R, f"reward.checkpoint={work / 'truncated.pt'}"]),
         Case("reward checkpoint from a newer format version", [*R, f"reward.checkpoint={work / 'future.pt'}"]),
@@ -143,7 +177,9 @@ def cases(work: Path, good_run: Path) -> list[Case]:
         Case("resume of a directory that is not a run", ["drs-learn", "resume={d}/nowhere"]),
         Case("resume switching a config group", ["drs-learn", "resume={good}", "algo=sac_paper"]),
         Case("resume with drs-reuse of a drs-learn run", ["drs-reuse", "resume={good}"]),
-        Case("resume of a run whose config.yaml is not valid YAML", ["drs-learn", "resume={good}"], damage=damage_config),
+        Case(
+            "resume of a run whose config.yaml is not valid YAML", ["drs-learn", "resume={good}"], damage=damage_config
+        ),
         Case("resume of a run whose training state is truncated", ["drs-learn", "resume={good}"], damage=damage_state),
         Case("a value of the wrong type", [*L, "total_frames=abc"]),
         Case("a new run in a directory that holds one (no resume=)", [*L, "hydra.run.dir={good}"]),
@@ -152,29 +188,54 @@ def cases(work: Path, good_run: Path) -> list[Case]:
         Case("a run directory under a file", [*L, f"hydra.run.dir={work / 'a_file'}/run"]),
         Case("an unknown learner precision", [*L, "algo.precision=fp8"]),
         Case("fp16 learner on a CPU", [*L, "algo.precision=fp16"]),
-        Case("config-defined family with a stage key the env does not report",
-             [*L, "env=custom", "env.family=mine", "env.env_id=PushCube-v1", "env.stage_keys=[is_grasped,success]"]),
+        Case(
+            "config-defined family with a stage key the env does not report",
+            [*L, "env=custom", "env.family=mine", "env.env_id=PushCube-v1", "env.stage_keys=[is_grasped,success]"],
+        ),
         Case("config-defined family named like a built-in one", [*L, "env=custom", "env.family=pick_cube"]),
-        Case("config-defined family with an env id ManiSkill does not know",
-             [*L, "env=custom", "env.family=mine", "env.env_id=PushCub-v1"]),
+        Case(
+            "config-defined family with an env id ManiSkill does not know",
+            [*L, "env=custom", "env.family=mine", "env.env_id=PushCub-v1"],
+        ),
         Case("drs-eval of a directory that is not a run", ["drs-eval", "{d}/nowhere"]),
         Case("drs-eval on an unknown variant", ["drs-eval", "{good}", "--split", "cube_9cm"]),
         Case("drs-eval of a run whose config.yaml is not valid YAML", ["drs-eval", "{good}"], damage=damage_config),
         Case("drs-eval --video naming a file", ["drs-eval", "{good}", "--video", f"{work / 'a_file'}"]),
         Case("drs-eval --out naming a folder", ["drs-eval", "{good}", "--out", "{d}"]),
-        Case("drs-demos --out naming a folder that is not demonstrations", ["drs-demos", "--num", "1", "--out", "{good}"]),
+        Case(
+            "drs-demos --out naming a folder that is not demonstrations", ["drs-demos", "--num", "1", "--out", "{good}"]
+        ),
         Case("drs-demos --from-policy of a folder that is not a run", ["drs-demos", "--from-policy", "{d}"]),
         Case("drs-demos --from-h5 of a missing file", ["drs-demos", "--from-h5", "{d}/none.h5"]),
         Case("drs-study with a malformed study file", ["drs-study", str(work / "other_family.pt")]),
-        Case("drs-study with a typo in one run's overrides (nothing may start)", ["drs-study", str(work / "typo_study.yaml")]),
-        Case("drs-study --report into a file", ["drs-study", str(work / "typo_study.yaml"), "--report", f"{work / 'a_file'}"]),
-        Case("drs-compare of a run whose train.csv is damaged", ["drs-compare", "{good}", "--out", "{d}/cmp"], damage=damage_csv),
+        Case(
+            "drs-study with a typo in one run's overrides (nothing may start)",
+            ["drs-study", str(work / "typo_study.yaml")],
+        ),
+        Case(
+            "drs-study --report into a file",
+            ["drs-study", str(work / "typo_study.yaml"), "--report", f"{work / 'a_file'}"],
+        ),
+        Case(
+            "drs-compare of a run whose train.csv is damaged",
+            ["drs-compare", "{good}", "--out", "{d}/cmp"],
+            damage=damage_csv,
+        ),
         Case("drs-compare --out naming a file", ["drs-compare", "{good}", "--out", f"{work / 'a_file'}"]),
-        Case("drs-plot of a run whose train.csv is damaged", ["drs-plot", "{good}", "--out", "{d}/p.png"], damage=damage_csv),
+        Case(
+            "drs-plot of a run whose train.csv is damaged",
+            ["drs-plot", "{good}", "--out", "{d}/p.png"],
+            damage=damage_csv,
+        ),
         Case("drs-plot --out under a file", ["drs-plot", "{good}", "--out", f"{work / 'a_file'}/p.png"]),
-        Case("drs-maze with a missing reward checkpoint",
-             ["drs-maze", "phase=reuse", "reward.name=drs", "reward.checkpoint={d}/none.pt", "hydra.run.dir={d}/m"]),
-        Case("drs-maze report of a folder without runs", ["drs-maze", "phase=report", "report.root={d}", "report.out={d}/r"]),
+        Case(
+            "drs-maze with a missing reward checkpoint",
+            ["drs-maze", "phase=reuse", "reward.name=drs", "reward.checkpoint={d}/none.pt", "hydra.run.dir={d}/m"],
+        ),
+        Case(
+            "drs-maze report of a folder without runs",
+            ["drs-maze", "phase=report", "report.root={d}", "report.out={d}/r"],
+        ),
         Case("drs-quickstart into a file", ["drs-quickstart", f"out={work / 'a_file'}"]),
         Case("drs-quickstart into a folder of other files", ["drs-quickstart", "out={good}"]),
         Case("drs-bench of an unknown task family", ["drs-bench", "--family", "pick_banana"]),
@@ -203,15 +264,31 @@ def prepare(work: Path) -> Path:
     payload = torch.load(good, weights_only=True)
     payload["version"] = 99
     torch.save(payload, work / "future.pt")
-    states = TensorDict({"observation": torch.zeros(4, 40), "stage_indicators": torch.zeros(4, 3),
-                         "episode": torch.zeros(4, dtype=torch.long)}, [4])
-    save_demos(states, {"format": "drs-torchrl/demos", "version": 1, "family": "pick_cube", "stage_keys": ["is_grasped", "is_obj_placed", "success"],
-                        "shapes": {"observation": 40, "stage_indicators": 3}}, work / "wrong.demos")
+    states = TensorDict(
+        {
+            "observation": torch.zeros(4, 40),
+            "stage_indicators": torch.zeros(4, 3),
+            "episode": torch.zeros(4, dtype=torch.long),
+        },
+        [4],
+    )
+    save_demos(
+        states,
+        {
+            "format": "drs-torchrl/demos",
+            "version": 1,
+            "family": "pick_cube",
+            "stage_keys": ["is_grasped", "is_obj_placed", "success"],
+            "shapes": {"observation": 40, "stage_indicators": 3},
+        },
+        work / "wrong.demos",
+    )
     (work / "a_file").write_text("not a folder\n")
     # a study whose second run has a typo in an override: refused before any run starts
     (work / "typo_study.yaml").write_text(
         f"root: {work / 'typo_study_runs'}\napp: learn\ncommon: [{', '.join(TINY)}]\n"
-        "runs:\n  - {name: good, args: [seed=0]}\n  - {name: typo, args: [algo.batchsize=64]}\n")
+        "runs:\n  - {name: good, args: [seed=0]}\n  - {name: typo, args: [algo.batchsize=64]}\n"
+    )
     return good_run
 
 
@@ -239,10 +316,12 @@ def run_case(case: Case, d: Path, work: Path, good_run: Path) -> tuple[int, str,
 
 def error_line(stderr: str) -> str:
     lines = [ln for ln in stderr.splitlines() if ln.strip() and "WARNING" not in ln and "warn" not in ln.lower()]
-    msg = (next((ln for ln in lines if ln.startswith(("drs-", "not run:")) and ("error:" in ln or "not run:" in ln)), None)
-           or " ".join(ln.strip() for ln in lines if ln.strip().startswith(("Could not", "Available options", "Key '")))
-           or next((ln for ln in reversed(lines) if "Error:" in ln), None)
-           or (lines[-1] if lines else ""))
+    msg = (
+        next((ln for ln in lines if ln.startswith(("drs-", "not run:")) and ("error:" in ln or "not run:" in ln)), None)
+        or " ".join(ln.strip() for ln in lines if ln.strip().startswith(("Could not", "Available options", "Key '")))
+        or next((ln for ln in reversed(lines) if "Error:" in ln), None)
+        or (lines[-1] if lines else "")
+    )
     return msg.strip()
 
 
@@ -261,19 +340,29 @@ def main() -> int:
         msg = error_line(stderr)
         clean = "Traceback" not in stderr and msg.startswith("drs-") and "internal error" not in msg
         rows.append((case.name, rc, msg[:300], clean, untouched))
-        print(f"{rc if rc is not None else '-':>3}  {'one line' if clean else 'NO      '}  {case.name}: {msg[:150]}", flush=True)
-    md = ["# Bad inputs and what they get", "",
-          "Produced by `.venv/bin/python results/bad_inputs/bad_input_table.py` (each case in a fresh directory; \"one line\": the "
-          "error line is all the user got, no traceback; \"files untouched\" compares the hashes of every file of an "
-          "existing run directory before and after, the run directory's lock `.drs-lock` aside; for two runs started "
-          "at once it means the directory holds the first run's files only, for a full disk that the last complete "
-          "training state is kept and no temporary files are left).", "",
-          "| bad input | exit code | message | one line | existing run files untouched |", "|---|---|---|---|---|"]
+        print(
+            f"{rc if rc is not None else '-':>3}  {'one line' if clean else 'NO      '}  {case.name}: {msg[:150]}",
+            flush=True,
+        )
+    md = [
+        "# Bad inputs and what they get",
+        "",
+        'Produced by `.venv/bin/python results/bad_inputs/bad_input_table.py` (each case in a fresh directory; "one line": the '
+        'error line is all the user got, no traceback; "files untouched" compares the hashes of every file of an '
+        "existing run directory before and after, the run directory's lock `.drs-lock` aside; for two runs started "
+        "at once it means the directory holds the first run's files only, for a full disk that the last complete "
+        "training state is kept and no temporary files are left).",
+        "",
+        "| bad input | exit code | message | one line | existing run files untouched |",
+        "|---|---|---|---|---|",
+    ]
     for name, rc, msg, clean, untouched in rows:
         if rc is None:
             md.append(f"| {name} | - | {msg.replace('|', '/')} | - | - |")
             continue
-        md.append(f"| {name} | {rc} | {msg.replace('|', '/')} | {'yes' if clean else 'NO'} | {'yes' if untouched else 'NO'} |")
+        md.append(
+            f"| {name} | {rc} | {msg.replace('|', '/')} | {'yes' if clean else 'NO'} | {'yes' if untouched else 'NO'} |"
+        )
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text("\n".join(md) + "\n")
     print(a.out)

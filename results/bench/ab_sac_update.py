@@ -10,6 +10,7 @@ a set of config overrides on a phase-1 PickCube trainer holding 1024 real transi
     .venv/bin/python results/bench/ab_sac_update.py --threads 1 --compare utd        # fewer, larger updates: learner ms per env step
     .venv/bin/python results/bench/ab_sac_update.py --threads 1 --compare schedules  # half the discriminator steps; batch 384 at UTD 1/3
 """
+
 import argparse
 import json
 import tempfile
@@ -39,25 +40,46 @@ COMPARISONS = {
     "utd": {
         "fp32, batch 256, UTD 0.5": ["algo.precision=fp32", "algo.batch_size=256", "algo.utd=0.5"],
         "bf16, batch 256, UTD 0.5": ["algo.precision=bf16", "algo.batch_size=256", "algo.utd=0.5"],
-        "bf16, batch 512, UTD 0.25": ["algo.precision=bf16", "algo.batch_size=512", "algo.utd=0.25",
-                                      "reward.disc.updates_per_sac_update=2"],
+        "bf16, batch 512, UTD 0.25": [
+            "algo.precision=bf16",
+            "algo.batch_size=512",
+            "algo.utd=0.25",
+            "reward.disc.updates_per_sac_update=2",
+        ],
         "fp32, batch 1024, UTD 0.5": ["algo.precision=fp32", "algo.batch_size=1024", "algo.utd=0.5"],
         "bf16, batch 1024, UTD 0.5": ["algo.precision=bf16", "algo.batch_size=1024", "algo.utd=0.5"],
-        "bf16, batch 2048, UTD 0.25": ["algo.precision=bf16", "algo.batch_size=2048", "algo.utd=0.25",
-                                       "reward.disc.updates_per_sac_update=2"],
-        "bf16, batch 1024, UTD 0.25": ["algo.precision=bf16", "algo.batch_size=1024", "algo.utd=0.25",
-                                       "reward.disc.updates_per_sac_update=2"],
+        "bf16, batch 2048, UTD 0.25": [
+            "algo.precision=bf16",
+            "algo.batch_size=2048",
+            "algo.utd=0.25",
+            "reward.disc.updates_per_sac_update=2",
+        ],
+        "bf16, batch 1024, UTD 0.25": [
+            "algo.precision=bf16",
+            "algo.batch_size=1024",
+            "algo.utd=0.25",
+            "reward.disc.updates_per_sac_update=2",
+        ],
     },
     # issue 12's cheaper schedules at batch 256's gradient samples per env step: half the discriminator steps,
     # or batch 384 at UTD 1/3 (the discriminators at 1.5 steps per SAC update); compare ms per env step
     "schedules": {
         "bf16, sac_cpu (batch 256, UTD 0.5, 1 discriminator step)": ["algo=sac_cpu", "algo.precision=bf16"],
         "bf16, sac_cpu_halfdisc (0.5 discriminator steps)": ["algo=sac_cpu_halfdisc", "algo.precision=bf16"],
-        "bf16, sac_cpu_utd033 (batch 384, UTD 1/3, 1.5 discriminator steps)": ["algo=sac_cpu_utd033", "algo.precision=bf16"],
-        "bf16, sac_cpu_utd033_halfdisc (batch 384, UTD 1/3, 0.75 discriminator steps)": ["algo=sac_cpu_utd033_halfdisc",
-                                                                                         "algo.precision=bf16"],
+        "bf16, sac_cpu_utd033 (batch 384, UTD 1/3, 1.5 discriminator steps)": [
+            "algo=sac_cpu_utd033",
+            "algo.precision=bf16",
+        ],
+        "bf16, sac_cpu_utd033_halfdisc (batch 384, UTD 1/3, 0.75 discriminator steps)": [
+            "algo=sac_cpu_utd033_halfdisc",
+            "algo.precision=bf16",
+        ],
     },
-    "adam": {"loop": [*UNFUSED, "+algo.optim.foreach=false"], "foreach": [*UNFUSED, "+algo.optim.foreach=true"], "fused": []},
+    "adam": {
+        "loop": [*UNFUSED, "+algo.optim.foreach=false"],
+        "foreach": [*UNFUSED, "+algo.optim.foreach=true"],
+        "fused": [],
+    },
 }
 
 
@@ -67,11 +89,21 @@ def trainer(algo, extra):
     algo = next((x.split("=", 1)[1] for x in extra if x.startswith("algo=")), algo)  # a variant's own algo config
     extra = [x for x in extra if not x.startswith("algo=")]
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
-        cfg = compose("learn", overrides=[f"algo={algo}", "total_frames=1024", "algo.learning_starts=100000", "eval.episodes=0",
-                                          "logger.progress_bar=false", "logger.tensorboard=false",
-                                          "+env.variant_overrides.goal_thresh=0.08",  # every discriminator has data
-                                          "algo.collector._target_=torchrl.collectors.Collector",
-                                          "checkpoint_interval=1000000000", *extra])
+        cfg = compose(
+            "learn",
+            overrides=[
+                f"algo={algo}",
+                "total_frames=1024",
+                "algo.learning_starts=100000",
+                "eval.episodes=0",
+                "logger.progress_bar=false",
+                "logger.tensorboard=false",
+                "+env.variant_overrides.goal_thresh=0.08",  # every discriminator has data
+                "algo.collector._target_=torchrl.collectors.Collector",
+                "checkpoint_interval=1000000000",
+                *extra,
+            ],
+        )
     d = tempfile.mkdtemp()
     Trainer(cfg, "learn", d).run()  # 1024 real PickCube transitions
     tr = Trainer(cfg, "learn", d, resume=True)
@@ -127,10 +159,21 @@ def main():
     out = []
     for k, v in res.items():
         utd = float(variants[k].cfg.algo.utd)
-        out.append({"variant": k, "overrides": COMPARISONS[a.compare][k], "ms_per_update_blocks": v, "ms_per_update_min": min(v),
-                    "utd": utd, "learner_ms_per_env_step": utd * min(v)})
-        print(f"{a.algo} threads={a.threads} {k}: ms per update (disc + SAC) {['%.1f' % x for x in v]}, min {min(v):.1f}; "
-              f"learner ms per env step (x UTD {utd:g}) {utd * min(v):.1f}", flush=True)
+        out.append(
+            {
+                "variant": k,
+                "overrides": COMPARISONS[a.compare][k],
+                "ms_per_update_blocks": v,
+                "ms_per_update_min": min(v),
+                "utd": utd,
+                "learner_ms_per_env_step": utd * min(v),
+            }
+        )
+        print(
+            f"{a.algo} threads={a.threads} {k}: ms per update (disc + SAC) {['%.1f' % x for x in v]}, min {min(v):.1f}; "
+            f"learner ms per env step (x UTD {utd:g}) {utd * min(v):.1f}",
+            flush=True,
+        )
     if a.json:
         with open(a.json, "w") as f:
             json.dump({"algo": a.algo, "threads": a.threads, "compare": a.compare, "results": out}, f, indent=2)

@@ -8,6 +8,7 @@ reach rates. Writes measure.json beside this file.
 
     .venv/bin/python results/families/measure.py [family ...]
 """
+
 from __future__ import annotations
 
 import json
@@ -64,7 +65,7 @@ def measure(name: str) -> dict:
     stage = td["next", "stage"].reshape(-1)
     ends = done.nonzero().reshape(-1).tolist()
     starts = [0] + [e + 1 for e in ends[:-1]]
-    best = torch.tensor([int(stage[s:e + 1].max()) for s, e in zip(starts, ends)])
+    best = torch.tensor([int(stage[s : e + 1].max()) for s, e in zip(starts, ends)])
     out["random_episodes"] = len(ends)
     out["random_reach"] = {k: round(float((best >= i + 1).float().mean()), 3) for i, k in enumerate(fam.stage_keys)}
     out["variants_seen"] = sorted({env.base_env.variant_names[int(i)] for i in td["next", "variant_index"].reshape(-1)})

@@ -5,6 +5,7 @@ row of train.csv every ~2k env steps) in env-step windows: the figures quoted fo
     .venv/bin/python results/families/reach_windows.py --step 50000 results/families/place_sphere_long   # uniform windows
     .venv/bin/python results/families/reach_windows.py --step 50000 --column success_rate RUN   # another column of train.csv
 """
+
 import csv
 import statistics
 import sys
@@ -29,4 +30,6 @@ for run in args:
     for lo, hi in windows:
         v = [x for f, x in xs if lo < f <= hi]
         if v:
-            print(f"  {lo // 1000:>3}-{hi // 1000}k: mean {statistics.mean(v):.2f}, min {min(v):.2f}, max {max(v):.2f} ({len(v)} rows)")
+            print(
+                f"  {lo // 1000:>3}-{hi // 1000}k: mean {statistics.mean(v):.2f}, min {min(v):.2f}, max {max(v):.2f} ({len(v)} rows)"
+            )

@@ -6,6 +6,7 @@ Per run: the first step at which the rolling training reach rate of stage 1 is >
 step with a training success, how many rows had any stage-1 episode and the highest stage-1 rate,
 and the reward on SAC batches (first and last row's mean, highest max).
 """
+
 import csv
 import sys
 
@@ -21,6 +22,10 @@ for run in sys.argv[1:]:
     maxes = [num(r, "reward_max") for r in rows if num(r, "reward_max") is not None]
     print(f"{run}: {len(rows)} rows to step {reach[-1][0]}")
     print(f"  stage-1 reach >= 0.8 first at step {first08}; first training success at step {first_succ}")
-    print(f"  rows with any stage-1 episode: {any_reach}; highest stage-1 rate {max(v for _, v in reach if v is not None):.2f}")
+    print(
+        f"  rows with any stage-1 episode: {any_reach}; highest stage-1 rate {max(v for _, v in reach if v is not None):.2f}"
+    )
     if means:
-        print(f"  reward on SAC batches: mean {means[0]:.3f} (first row) -> {means[-1]:.3f} (last row), highest max {max(maxes):.3f}")
+        print(
+            f"  reward on SAC batches: mean {means[0]:.3f} (first row) -> {means[-1]:.3f} (last row), highest max {max(maxes):.3f}"
+        )

@@ -8,6 +8,7 @@ phase 1); this rolls the deterministic policy out with the env's own reward inst
 return, the first step at which the running return passed 4800 (success) and, if the run has a
 learned reward, the mean learned reward of the episode.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -34,8 +35,9 @@ def main() -> None:
     cfg = OmegaConf.load(a.run_dir / "config.yaml")
     family = get_family(cfg.env.family)
     # the paper's success threshold, whatever the run trained with
-    env = make_family_env(family, a.split or cfg.env.split, reward_mode="dense", seed=12345,
-                          variant_overrides={"success_return": 4800.0})
+    env = make_family_env(
+        family, a.split or cfg.env.split, reward_mode="dense", seed=12345, variant_overrides={"success_return": 4800.0}
+    )
     ck = torch.load(a.run_dir / "checkpoints" / "policy.pt", map_location="cpu", weights_only=False)
     actor, _ = make_sac_modules(env.observation_spec, env.action_spec, ck["policy_in_keys"], ck["hidden"])
     actor.load_state_dict(ck["actor"])
@@ -47,9 +49,12 @@ def main() -> None:
             td = env.rollout(1000, actor)
             ret = td["next", "reward"].reshape(-1).cumsum(0)
             passed = (ret > 4800).nonzero()
-            row = {"return": float(ret[-1]), "steps": int(td.shape[0]),
-                   "success_step": int(passed[0]) if passed.numel() else None,
-                   "forward_velocity_mean": float(td["next", "observation"][:, 8].mean())}
+            row = {
+                "return": float(ret[-1]),
+                "steps": int(td.shape[0]),
+                "success_step": int(passed[0]) if passed.numel() else None,
+                "forward_velocity_mean": float(td["next", "observation"][:, 8].mean()),
+            }
             if learned is not None:
                 row["learned_reward_mean"] = float(learned.reward(td["next"]).mean())
             out.append(row)

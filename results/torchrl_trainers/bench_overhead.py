@@ -3,6 +3,7 @@
 Same collector/env/nets/replay; both do 32 SAC updates per 64-frame batch (UTD 0.5), no logging.
 Run from the repository root:  OMP_NUM_THREADS=1 .venv/bin/python results/torchrl_trainers/bench_overhead.py
 """
+
 from __future__ import annotations
 
 import json
@@ -62,9 +63,21 @@ def plain(seed=0):
 
 def trainer(seed=0):
     col, loss, target, optim, rb = pieces(seed)
-    tr = SACTrainer(collector=col, total_frames=TOTAL, frame_skip=1, optim_steps_per_batch=STEPS, loss_module=loss,
-                    optimizer=optim, replay_buffer=rb, target_net_updater=target, progress_bar=False,
-                    enable_logging=False, auto_log_optim_steps=False, save_trainer_interval=10**9, log_interval=10**9)
+    tr = SACTrainer(
+        collector=col,
+        total_frames=TOTAL,
+        frame_skip=1,
+        optim_steps_per_batch=STEPS,
+        loss_module=loss,
+        optimizer=optim,
+        replay_buffer=rb,
+        target_net_updater=target,
+        progress_bar=False,
+        enable_logging=False,
+        auto_log_optim_steps=False,
+        save_trainer_interval=10**9,
+        log_interval=10**9,
+    )
     t0 = time.perf_counter()
     tr.train()
     return {"wall": time.perf_counter() - t0, "updates": tr._optim_count}

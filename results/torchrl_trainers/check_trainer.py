@@ -3,6 +3,7 @@
 CPU-light: Pendulum-v1, tiny nets, a few hundred frames, one thread.
 Run from the repository root:  OMP_NUM_THREADS=1 .venv/bin/python results/torchrl_trainers/check_trainer.py
 """
+
 from __future__ import annotations
 
 import csv
@@ -38,7 +39,7 @@ from torchrl.trainers.algorithms import SACTrainer
 from drs_torchrl.data import TrajectoryAssembler  # read-only use of the project's episode assembler
 
 OUT = Path(tempfile.mkdtemp(prefix="trainer_eval-"))
-FPB, MAX_STEPS, INIT_RANDOM = 50, 75, 100   # episodes of 75 steps span batches of 50
+FPB, MAX_STEPS, INIT_RANDOM = 50, 75, 100  # episodes of 75 steps span batches of 50
 
 
 def make_env(seed=0):
@@ -53,7 +54,10 @@ def make_sac(env, seed=0):
     actor_net = nn.Sequential(MLP(out_features=2 * n_act, num_cells=[32]), NormalParamExtractor())
     actor = ProbabilisticActor(
         TensorDictModule(actor_net, in_keys=["observation"], out_keys=["loc", "scale"]),
-        in_keys=["loc", "scale"], spec=env.action_spec, distribution_class=TanhNormal, return_log_prob=False,
+        in_keys=["loc", "scale"],
+        spec=env.action_spec,
+        distribution_class=TanhNormal,
+        return_log_prob=False,
     )
     q = ValueOperator(MLP(out_features=1, num_cells=[32]), in_keys=["observation", "action"])
     with torch.no_grad():
@@ -61,7 +65,9 @@ def make_sac(env, seed=0):
         actor(td)
         q(td)
     loss = SACLoss(actor, q, num_qvalue_nets=2, deactivate_vmap=True)
-    loss.make_value_estimator(gamma=0.99)  # eager, or a fresh loss cannot load a trained one (lazy _value_estimator.gamma)
+    loss.make_value_estimator(
+        gamma=0.99
+    )  # eager, or a fresh loss cannot load a trained one (lazy _value_estimator.gamma)
     return actor, loss, SoftUpdate(loss, tau=0.005), torch.optim.Adam(loss.parameters(), lr=3e-4)
 
 
@@ -136,10 +142,21 @@ def build_sac_trainer(tag, total_frames, ckpt_path=None, logger=None, seed=0, op
     rb = ReplayBuffer(storage=LazyTensorStorage(10_000), batch_size=32, transform=reward)
     collector = Collector(env, actor, frames_per_batch=FPB, total_frames=total_frames, init_random_frames=INIT_RANDOM)
     trainer = SACTrainer(
-        collector=collector, total_frames=total_frames, frame_skip=1, optim_steps_per_batch=optim_steps,
-        loss_module=loss, optimizer=optim, replay_buffer=rb, target_net_updater=target, logger=logger,
-        progress_bar=False, seed=seed, log_interval=0, save_trainer_interval=10**9,
-        checkpoint=Checkpoint() if ckpt_path else None, save_trainer_file=ckpt_path,
+        collector=collector,
+        total_frames=total_frames,
+        frame_skip=1,
+        optim_steps_per_batch=optim_steps,
+        loss_module=loss,
+        optimizer=optim,
+        replay_buffer=rb,
+        target_net_updater=target,
+        logger=logger,
+        progress_bar=False,
+        seed=seed,
+        log_interval=0,
+        save_trainer_interval=10**9,
+        checkpoint=Checkpoint() if ckpt_path else None,
+        save_trainer_file=ckpt_path,
         episode_reward_key="episode_reward",  # the default "reward_sum" is not what RewardSum writes
     )
     hooks = DrSHooks(reward, trainer)
@@ -161,8 +178,12 @@ def part_a():
     return {
         "seconds": round(time.perf_counter() - t0, 2),
         "hook_calls": dict(hooks.log),
-        "expected": {"batch_process": n_batches, "post_steps_log": n_batches,
-                     "post_optim": learning_batches * 4, "process_optim_batch": learning_batches * 4},
+        "expected": {
+            "batch_process": n_batches,
+            "post_steps_log": n_batches,
+            "post_optim": learning_batches * 4,
+            "process_optim_batch": learning_batches * 4,
+        },
         "batch_shapes": sorted(set(hooks.batch_shapes)),
         "episode_lengths_assembled": hooks.episode_lengths,
         "collected_frames": trainer.collected_frames,
@@ -189,7 +210,9 @@ def part_b():
     shutil.rmtree(OUT, ignore_errors=True)
     OUT.mkdir(parents=True)
     logger_a = CSVLogger("run", log_dir=str(logdir))
-    trainer, hooks, rb, reward, loss, optim = build_sac_trainer("b1", 400, ckpt_path=str(OUT / "final"), logger=logger_a)
+    trainer, hooks, rb, reward, loss, optim = build_sac_trainer(
+        "b1", 400, ckpt_path=str(OUT / "final"), logger=logger_a
+    )
 
     saved = {}
 
@@ -197,8 +220,12 @@ def part_b():
         if trainer.collected_frames == 200 and not saved:
             trainer.checkpoint.save(ck)
             saved.update(
-                frames=trainer.collected_frames, optim=trainer._optim_count, rb=len(rb), rng=torch.get_rng_state().clone(),
-                collector_frames=trainer.collector._frames, episodes=len(hooks.episode_lengths),
+                frames=trainer.collected_frames,
+                optim=trainer._optim_count,
+                rb=len(rb),
+                rng=torch.get_rng_state().clone(),
+                collector_frames=trainer.collector._frames,
+                episodes=len(hooks.episode_lengths),
                 partial=len(hooks.assembler._partial),
                 params=TensorDict.from_module(loss).clone(),
                 adam_step=float(next(iter(optim.state.values()))["step"]),
@@ -212,7 +239,9 @@ def part_b():
 
     # --- a new process would build everything again and load ---
     logger_b = CSVLogger("run", log_dir=str(logdir))
-    trainer2, hooks2, rb2, reward2, loss2, optim2 = build_sac_trainer("b2", 400, ckpt_path=str(OUT / "final2"), logger=logger_b, seed=0)
+    trainer2, hooks2, rb2, reward2, loss2, optim2 = build_sac_trainer(
+        "b2", 400, ckpt_path=str(OUT / "final2"), logger=logger_b, seed=0
+    )
     torch.manual_seed(12345)  # perturb the global RNG: is it restored?
     trainer2.load_from_file(ck)
     p2 = TensorDict.from_module(loss2)
@@ -283,12 +312,23 @@ def part_c():
     reward = CountingReward()
     rb = ReplayBuffer(storage=LazyTensorStorage(10_000), batch_size=32, transform=reward)
     collector = Collector(env, actor, frames_per_batch=FPB, total_frames=600, init_random_frames=INIT_RANDOM)
-    stepper = MixedPrecisionOptimizationStepper(optim, mixed_precision=True, autocast_dtype=torch.bfloat16,
-                                                clip_norm=None, device_type="cpu")
-    trainer = Trainer(collector=collector, total_frames=600, frame_skip=1, optim_steps_per_batch=None,
-                      loss_module=loss, optimizer=optim, optimization_stepper=stepper, progress_bar=False,
-                      save_trainer_interval=10**9, checkpoint=Checkpoint(), save_trainer_file=str(OUT / "sig_ckpt"),
-                      log_interval=0)
+    stepper = MixedPrecisionOptimizationStepper(
+        optim, mixed_precision=True, autocast_dtype=torch.bfloat16, clip_norm=None, device_type="cpu"
+    )
+    trainer = Trainer(
+        collector=collector,
+        total_frames=600,
+        frame_skip=1,
+        optim_steps_per_batch=None,
+        loss_module=loss,
+        optimizer=optim,
+        optimization_stepper=stepper,
+        progress_bar=False,
+        save_trainer_interval=10**9,
+        checkpoint=Checkpoint(),
+        save_trainer_file=str(OUT / "sig_ckpt"),
+        log_interval=0,
+    )
     utd = UTDHook(trainer, rb, utd=1 / 3, learning_starts=INIT_RANDOM)
     trainer.register_op("batch_process", utd.extend)
     trainer.register_op("pre_optim_steps", utd.pre_optim)
@@ -314,7 +354,6 @@ def part_c():
         trainer.train()
     finally:
         signal.signal(signal.SIGTERM, prev)
-    frames_learning = trainer.collected_frames - INIT_RANDOM + FPB  # batches at/after init_random count
     return {
         "collected_frames_at_stop": trainer.collected_frames,
         "stop_reason": trainer._stop_reason,
@@ -339,13 +378,16 @@ def part_d():
     offline.extend(demo)
     reward = CountingReward()
     reward.version = 7.0
-    o2o = OfflineToOnlineReplayBuffer(offline, online_capacity=1000, offline_fraction=0.25, batch_size=32, transform=reward)
+    o2o = OfflineToOnlineReplayBuffer(
+        offline, online_capacity=1000, offline_fraction=0.25, batch_size=32, transform=reward
+    )
     online = env.rollout(60).exclude("collector")
     online.set("is_demo", torch.zeros(online.shape[0], 1, dtype=torch.bool))
     o2o.extend(online)
     s = o2o.sample()
     return {
-        "batch": s.shape[0], "demo_rows": int(s["is_demo"].sum()),
+        "batch": s.shape[0],
+        "demo_rows": int(s["is_demo"].sum()),
         "all rewards rewritten by transform": bool((s["next", "reward"] == 7.0).all()),
         "transform calls (one per sample)": reward.calls,
         "OfflineToOnlineReplayBuffer checkpointable itself": Trainer._is_checkpointable(o2o),
@@ -354,7 +396,12 @@ def part_d():
 
 if __name__ == "__main__":
     res = {}
-    for name, fn in (("A_hooks", part_a), ("B_checkpoint_resume", part_b), ("C_base_trainer_utd_bf16_signal", part_c), ("D_offline_to_online", part_d)):
+    for name, fn in (
+        ("A_hooks", part_a),
+        ("B_checkpoint_resume", part_b),
+        ("C_base_trainer_utd_bf16_signal", part_c),
+        ("D_offline_to_online", part_d),
+    ):
         t = time.perf_counter()
         try:
             res[name] = fn()

@@ -20,6 +20,7 @@ Writes ``results/bench/bench.json`` and ``results/bench/bench.md``. Usage::
     drs-bench                       # PickCube, sac_cpu and sac_paper
     drs-bench --learn-frames 2048 --algos sac_cpu
 """
+
 from __future__ import annotations
 
 import argparse
@@ -41,8 +42,16 @@ def bench_raw_sim(env_id: str, steps: int, env_kwargs: dict, control_mode: str) 
 
     import drs_torchrl.envs.variants  # noqa: F401
 
-    env = gym.make(env_id, obs_mode="state", control_mode=control_mode, num_envs=1, sim_backend="physx_cpu",
-                   reward_mode="sparse", render_mode=None, **env_kwargs)
+    env = gym.make(
+        env_id,
+        obs_mode="state",
+        control_mode=control_mode,
+        num_envs=1,
+        sim_backend="physx_cpu",
+        reward_mode="sparse",
+        render_mode=None,
+        **env_kwargs,
+    )
     env.reset(seed=0)
     t = time.perf_counter()
     for _ in range(steps):
@@ -80,8 +89,9 @@ def bench_collect(family, steps: int, collector: str = "inproc") -> float:
         makers = [functools.partial(in_quiet_worker, make_family_env, family, "train", seed=s) for s in (0, 1)]
         collector = MultiAsyncCollector(makers, None, frames_per_batch=64, total_frames=steps + warmup)
     else:
-        collector = Collector(make(), None, frames_per_batch=64, total_frames=steps + warmup,
-                              auto_register_policy_transforms=False)
+        collector = Collector(
+            make(), None, frames_per_batch=64, total_frames=steps + warmup, auto_register_policy_transforms=False
+        )
     n, t = 0, None
     for batch in collector:
         rb.extend(batch.reshape(-1))
@@ -95,8 +105,9 @@ def bench_collect(family, steps: int, collector: str = "inproc") -> float:
     return n / dt
 
 
-def bench_components(algo: str, sizes: list[int], batch_reps: int = 50, precisions: tuple[str, ...] = ("fp32",),
-                     compile_too: bool = True) -> dict:
+def bench_components(
+    algo: str, sizes: list[int], batch_reps: int = 50, precisions: tuple[str, ...] = ("fp32",), compile_too: bool = True
+) -> dict:
     """Per-call times of the learner's parts on real PickCube data (phase 1, ``algo``):
 
     * ``sac_update_ms``: one SAC update (replay sample, reward recomputation, SACLoss, backward,
@@ -125,9 +136,19 @@ def bench_components(algo: str, sizes: list[int], batch_reps: int = 50, precisio
 
     top = max(sizes)
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
-        cfg = compose("learn", overrides=[f"algo={algo}", "total_frames=2048", "algo.learning_starts=100000",
-                                          "eval.episodes=0", "logger.progress_bar=false", "logger.tensorboard=false",
-                                          f"reward.stage_buffer_size={top}", "checkpoint_interval=1000000000"])
+        cfg = compose(
+            "learn",
+            overrides=[
+                f"algo={algo}",
+                "total_frames=2048",
+                "algo.learning_starts=100000",
+                "eval.episodes=0",
+                "logger.progress_bar=false",
+                "logger.tensorboard=false",
+                f"reward.stage_buffer_size={top}",
+                "checkpoint_interval=1000000000",
+            ],
+        )
     out: dict = {"algo": algo, "batch_size": int(cfg.algo.batch_size), "width": int(max(cfg.algo.hidden))}
     with tempfile.TemporaryDirectory() as d:
         tr = Trainer(cfg, "learn", d)
@@ -151,8 +172,14 @@ def bench_components(algo: str, sizes: list[int], batch_reps: int = 50, precisio
             n = len(tr.learner.stage_buffers)
             ms = per_call_ms(tr.learner.stage_buffers.sample_discriminator_batch, n=200)
             # filing adds 50 transitions per call (12 calls: at most 600, small beside the sizes swept)
-            file_ms = per_call_ms(lambda: (tr.learner.stage_buffers.add_trajectory(ep), tr.learner.stage_buffers.sample_discriminator_batch()),
-                                  n=10, warm=2)
+            file_ms = per_call_ms(
+                lambda: (
+                    tr.learner.stage_buffers.add_trajectory(ep),
+                    tr.learner.stage_buffers.sample_discriminator_batch(),
+                ),
+                n=10,
+                warm=2,
+            )
             sweep.append({"transitions": n, "sample_ms": ms, "file_episode_and_sample_ms": file_ms})
         out["stage_sample"] = sweep
         tr.close()
@@ -243,10 +270,19 @@ def roofline(res: dict) -> list[dict]:
             gall = gemm_gflops(bs, width, cores, dtype=dtypes[prec])
             core_s = utd * c["sac_update_gflop"] / g1 + 1.0 / raw
             bound = cores / core_s
-            row = {"algo": c["algo"], "precision": prec, "batch_size": bs, "utd": utd, "gflop_per_update": c["sac_update_gflop"],
-                   "gemm_gflops_1_thread": g1, f"gemm_gflops_{cores}_threads": gall, "cores": cores,
-                   "update_ms_lower_bound_all_cores": c["sac_update_gflop"] / gall * 1e3,
-                   "update_ms_measured": measured, "env_steps_per_s_bound": bound}
+            row = {
+                "algo": c["algo"],
+                "precision": prec,
+                "batch_size": bs,
+                "utd": utd,
+                "gflop_per_update": c["sac_update_gflop"],
+                "gemm_gflops_1_thread": g1,
+                f"gemm_gflops_{cores}_threads": gall,
+                "cores": cores,
+                "update_ms_lower_bound_all_cores": c["sac_update_gflop"] / gall * 1e3,
+                "update_ms_measured": measured,
+                "env_steps_per_s_bound": bound,
+            }
             if ref in plain:
                 row["plain_env_steps_per_s"] = plain[ref]
                 row["bound_over_plain"] = bound / plain[ref]
@@ -254,11 +290,16 @@ def roofline(res: dict) -> list[dict]:
     return out
 
 
-COLLECTORS = {"inproc": "torchrl.collectors.Collector", "background": "torchrl.collectors.AsyncCollector",
-              "background2": "torchrl.collectors.MultiAsyncCollector"}
+COLLECTORS = {
+    "inproc": "torchrl.collectors.Collector",
+    "background": "torchrl.collectors.AsyncCollector",
+    "background2": "torchrl.collectors.MultiAsyncCollector",
+}
 
 
-def bench_learn(algo: str, frames: int, overrides: list[str], collector: str = "inproc", precision: str = "fp32") -> dict:
+def bench_learn(
+    algo: str, frames: int, overrides: list[str], collector: str = "inproc", precision: str = "fp32"
+) -> dict:
     """Phase-1 speed after learning starts: env steps/s and updates/s over ``frames`` steps, with the
     collector in this process (``inproc``) or in background processes (``background``, ``background2``);
     ``<collector>:T`` sets the learner's torch threads to ``T``."""
@@ -273,9 +314,19 @@ def bench_learn(algo: str, frames: int, overrides: list[str], collector: str = "
         kind, _, threads = collector.partition(":")  # e.g. "background:2": the learner keeps 2 torch threads
         extra = ["+algo.collector.num_workers=2"] if kind == "background2" else []
         if threads:
-            extra.append(f"+algo.collector.num_threads={int(threads)}" if kind != "inproc" else f"torch_threads={int(threads)}")
-        cfg = compose("learn", overrides=[f"algo={algo}", f"algo.collector._target_={COLLECTORS[kind]}", f"algo.precision={precision}",
-                                          *extra, *overrides])
+            extra.append(
+                f"+algo.collector.num_threads={int(threads)}" if kind != "inproc" else f"torch_threads={int(threads)}"
+            )
+        cfg = compose(
+            "learn",
+            overrides=[
+                f"algo={algo}",
+                f"algo.collector._target_={COLLECTORS[kind]}",
+                f"algo.precision={precision}",
+                *extra,
+                *overrides,
+            ],
+        )
     start = int(cfg.algo.learning_starts)
     cfg.total_frames = start + frames
     cfg.eval.interval = 10**9
@@ -323,10 +374,19 @@ def bench_checkpoint(transitions: int) -> dict:
     from drs_torchrl.trainers.loop import Trainer
 
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
-        cfg = compose("learn", overrides=["total_frames=1024", "algo.learning_starts=100000", "eval.episodes=0",
-                                          "logger.progress_bar=false", "logger.tensorboard=false",
-                                          f"algo.buffer_size={transitions}", f"reward.stage_buffer_size={transitions}",
-                                          "checkpoint_interval=1000000000"])
+        cfg = compose(
+            "learn",
+            overrides=[
+                "total_frames=1024",
+                "algo.learning_starts=100000",
+                "eval.episodes=0",
+                "logger.progress_bar=false",
+                "logger.tensorboard=false",
+                f"algo.buffer_size={transitions}",
+                f"reward.stage_buffer_size={transitions}",
+                "checkpoint_interval=1000000000",
+            ],
+        )
     d = Path(tempfile.mkdtemp(prefix="drs-ckpt-"))
     try:
         tr = Trainer(cfg, "learn", d)
@@ -350,8 +410,14 @@ def bench_checkpoint(transitions: int) -> dict:
         tr2.close()
     finally:
         shutil.rmtree(d, ignore_errors=True)
-    return {"transitions": transitions, "bytes": size, "write_s": write_s, "resume_s": read_s, "restored": ok,
-            "bytes_per_transition_replay_plus_stage": size / transitions}
+    return {
+        "transitions": transitions,
+        "bytes": size,
+        "write_s": write_s,
+        "resume_s": read_s,
+        "restored": ok,
+        "bytes_per_transition_replay_plus_stage": size / transitions,
+    }
 
 
 PAPER_UTD = 0.5  # the plain loop's reference UTD (the paper's)
@@ -370,7 +436,12 @@ def algo_settings(algo: str) -> tuple[int, float, int, int]:
 
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
         cfg = compose("learn", overrides=[f"algo={algo}"])
-    return int(cfg.algo.batch_size), float(cfg.algo.utd), float(cfg.reward.disc.updates_per_sac_update), int(cfg.reward.disc.batch_size)
+    return (
+        int(cfg.algo.batch_size),
+        float(cfg.algo.utd),
+        float(cfg.reward.disc.updates_per_sac_update),
+        int(cfg.reward.disc.batch_size),
+    )
 
 
 def parse_algo(spec: str, default_precisions) -> tuple[str, list[str]]:
@@ -390,39 +461,79 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--raw-steps", type=int, default=3000)
     p.add_argument("--collect-steps", type=int, default=3008)
     p.add_argument("--learn-frames", type=int, default=2048)
-    p.add_argument("--algos", nargs="*", default=["sac_cpu", "sac_cpu_utd025:bf16", "sac_paper", "sac_paper_utd025:bf16"],
-                   help="algo configs (conf/algo/), each optionally with ':PREC[,PREC]', its own learner precisions "
-                        "(default: --precisions)")
-    p.add_argument("--collect-collectors", nargs="*", default=["inproc", "background", "background2"], choices=sorted(COLLECTORS),
-                   help="collectors for the collection-only measurement")
-    p.add_argument("--collectors", nargs="*", default=["inproc", "background", "background:2"],
-                   help="collectors for the phase-1 measurements: inproc, background, background2 (two workers), "
-                        "optionally with ':T' for T learner torch threads (default: a background collector leaves "
-                        "the learner cpu_count - workers threads)")
-    p.add_argument("--precisions", nargs="*", default=["fp32", "bf16"], choices=["fp32", "bf16"],
-                   help="learner precisions of the phase-1 measurements (algo.precision); the plain loop is fp32")
-    p.add_argument("--stage-sizes", nargs="*", type=int, default=[1_000, 10_000, 100_000, 1_000_000],
-                   help="stage-buffer sizes for the sampling-time sweep (empty: skip the component timings)")
-    p.add_argument("--learning-starts", type=int, default=None, metavar="N",
-                   help="override algo.learning_starts, the untimed warm-up of the phase-1 rows (smoke runs only)")
+    p.add_argument(
+        "--algos",
+        nargs="*",
+        default=["sac_cpu", "sac_cpu_utd025:bf16", "sac_paper", "sac_paper_utd025:bf16"],
+        help="algo configs (conf/algo/), each optionally with ':PREC[,PREC]', its own learner precisions "
+        "(default: --precisions)",
+    )
+    p.add_argument(
+        "--collect-collectors",
+        nargs="*",
+        default=["inproc", "background", "background2"],
+        choices=sorted(COLLECTORS),
+        help="collectors for the collection-only measurement",
+    )
+    p.add_argument(
+        "--collectors",
+        nargs="*",
+        default=["inproc", "background", "background:2"],
+        help="collectors for the phase-1 measurements: inproc, background, background2 (two workers), "
+        "optionally with ':T' for T learner torch threads (default: a background collector leaves "
+        "the learner cpu_count - workers threads)",
+    )
+    p.add_argument(
+        "--precisions",
+        nargs="*",
+        default=["fp32", "bf16"],
+        choices=["fp32", "bf16"],
+        help="learner precisions of the phase-1 measurements (algo.precision); the plain loop is fp32",
+    )
+    p.add_argument(
+        "--stage-sizes",
+        nargs="*",
+        type=int,
+        default=[1_000, 10_000, 100_000, 1_000_000],
+        help="stage-buffer sizes for the sampling-time sweep (empty: skip the component timings)",
+    )
+    p.add_argument(
+        "--learning-starts",
+        type=int,
+        default=None,
+        metavar="N",
+        help="override algo.learning_starts, the untimed warm-up of the phase-1 rows (smoke runs only)",
+    )
     p.add_argument("--out", default="results/bench")
     p.add_argument("--no-plain", action="store_true", help="skip the plain single-file loop baseline")
     p.add_argument("--no-compile", action="store_true", help="skip the algo.compile=true timing of the components")
-    p.add_argument("--checkpoint", type=int, default=0, metavar="N",
-                   help="also measure the training-state checkpoint of a run holding N transitions (e.g. 1000000)")
+    p.add_argument(
+        "--checkpoint",
+        type=int,
+        default=0,
+        metavar="N",
+        help="also measure the training-state checkpoint of a run holding N transitions (e.g. 1000000)",
+    )
     a = p.parse_args(argv)
     from drs_torchrl.rundir import check_writable
     from drs_torchrl.tasks import get_family
 
     fam = get_family(a.family)  # both checked before the benchmark starts
     check_writable(a.out, "--out", folder=True)
-    learn_overrides = [f"env={a.family}"] + ([] if a.learning_starts is None else [f"algo.learning_starts={a.learning_starts}"])
+    learn_overrides = [f"env={a.family}"] + (
+        [] if a.learning_starts is None else [f"algo.learning_starts={a.learning_starts}"]
+    )
     kw = fam.variant_kwargs("train")
     threads = torch.get_num_threads()
     res: dict = {
         "command": "drs-bench " + " ".join(sys.argv[1:] if argv is None else argv),
-        "machine": {"cpus": os.cpu_count(), "torch_threads": threads, "platform": platform.platform(),
-                    "torch": torch.__version__, "cuda": torch.cuda.is_available()},
+        "machine": {
+            "cpus": os.cpu_count(),
+            "torch_threads": threads,
+            "platform": platform.platform(),
+            "torch": torch.__version__,
+            "cuda": torch.cuda.is_available(),
+        },
         "family": a.family,
     }
     print("raw simulator ...", flush=True)
@@ -433,7 +544,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"collection only, {c} collector ...", flush=True)
         res["collect"][c] = bench_collect(fam, a.collect_steps, collector=c)
         torch.set_num_threads(threads)  # a background collector lowers this process's threads while it runs
-        print(f"  {res['collect'][c]:.0f} steps/s ({res['collect'][c] / res['raw_sim_steps_per_s']:.2f}x raw)", flush=True)
+        print(
+            f"  {res['collect'][c]:.0f} steps/s ({res['collect'][c] / res['raw_sim_steps_per_s']:.2f}x raw)", flush=True
+        )
     res["learn"] = []
     res["plain"] = []
     from drs_torchrl.plain_loop import run_plain_drs
@@ -442,17 +555,32 @@ def main(argv: list[str] | None = None) -> int:
     res["machine"]["native_bf16"] = native_bf16("cpu")
 
     def plain(bs: int, disc_batch: int, utd: float = 0.5, disc_updates: float = 1) -> dict:
-        print(f"plain single-file loop, batch {bs}, UTD {utd:g}, {disc_updates:g} discriminator step(s) per update ...", flush=True)
-        q = run_plain_drs(fam.env_id, kw, fam.stage_keys, bs, a.learn_frames, utd=utd, disc_updates=disc_updates,
-                          disc_batch_size=disc_batch)
+        print(
+            f"plain single-file loop, batch {bs}, UTD {utd:g}, {disc_updates:g} discriminator step(s) per update ...",
+            flush=True,
+        )
+        q = run_plain_drs(
+            fam.env_id,
+            kw,
+            fam.stage_keys,
+            bs,
+            a.learn_frames,
+            utd=utd,
+            disc_updates=disc_updates,
+            disc_batch_size=disc_batch,
+        )
         torch.set_num_threads(threads)
         print(f"  {q['env_steps_per_s']:.1f} env steps/s", flush=True)
         return q
 
     def mean_of(before: dict, after: dict) -> dict:
-        return {**before, "env_steps_per_s": (before["env_steps_per_s"] + after["env_steps_per_s"]) / 2,
-                "updates_per_s_overall": (before["updates_per_s_overall"] + after["updates_per_s_overall"]) / 2,
-                "before": before["env_steps_per_s"], "after": after["env_steps_per_s"]}
+        return {
+            **before,
+            "env_steps_per_s": (before["env_steps_per_s"] + after["env_steps_per_s"]) / 2,
+            "updates_per_s_overall": (before["updates_per_s_overall"] + after["updates_per_s_overall"]) / 2,
+            "before": before["env_steps_per_s"],
+            "after": after["env_steps_per_s"],
+        }
 
     for spec in a.algos:
         algo, precisions = parse_algo(spec, a.precisions)
@@ -489,13 +617,17 @@ def main(argv: list[str] | None = None) -> int:
         for spec in a.algos:
             algo, precisions = parse_algo(spec, a.precisions)
             print(f"component timings, {algo} ...", flush=True)
-            res["components"].append(bench_components(algo, a.stage_sizes, precisions=tuple(precisions), compile_too=not a.no_compile))
+            res["components"].append(
+                bench_components(algo, a.stage_sizes, precisions=tuple(precisions), compile_too=not a.no_compile)
+            )
         print("roofline (GEMM rate at the update's shapes) ...", flush=True)
         res["roofline"] = roofline(res)
     if a.checkpoint:
         print(f"checkpoint of a {a.checkpoint}-transition run ...", flush=True)
         res["checkpoint"] = c = bench_checkpoint(a.checkpoint)
-        print(f"  {c['bytes'] / 1e6:.0f} MB, written in {c['write_s']:.1f}s, resumed in {c['resume_s']:.1f}s", flush=True)
+        print(
+            f"  {c['bytes'] / 1e6:.0f} MB, written in {c['write_s']:.1f}s, resumed in {c['resume_s']:.1f}s", flush=True
+        )
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "bench.json").write_text(json.dumps(res, indent=2))
@@ -509,54 +641,92 @@ def render_markdown(res: dict) -> str:
     m = res["machine"]
     raw = res["raw_sim_steps_per_s"]
     lines = [
-        f"# drs-bench on {res['family']}", "", f"Command: `{res['command']}`", "",
+        f"# drs-bench on {res['family']}",
+        "",
+        f"Command: `{res['command']}`",
+        "",
         f"Machine: {m['cpus']} CPUs, {m['torch_threads']} torch threads, {m['platform']}, torch {m['torch']}, CUDA {m['cuda']}"
-        + (f", native bf16: {'yes' if m['native_bf16'] else 'no (bf16 is emulated)'}" if "native_bf16" in m else ""), "",
+        + (f", native bf16: {'yes' if m['native_bf16'] else 'no (bf16 is emulated)'}" if "native_bf16" in m else ""),
+        "",
         "`vs plain loop`: against the plain fp32 loop at the paper's UTD 0.5 with the same gradient samples per env step "
-        "(batch x UTD); `vs plain loop, same lever`: against the plain loop at the row's own batch and UTD.", "",
-        "| measurement | env steps/s | updates/s | vs plain loop | vs plain loop, same lever |", "|---|---|---|---|---|",
+        "(batch x UTD); `vs plain loop, same lever`: against the plain loop at the row's own batch and UTD.",
+        "",
+        "| measurement | env steps/s | updates/s | vs plain loop | vs plain loop, same lever |",
+        "|---|---|---|---|---|",
         f"| raw simulator (gymnasium, random actions, resets) | {raw:.0f} | - | - | - |",
     ]
     for c, v in res["collect"].items():
-        lines.append(f"| collection only, {c} collector (env + transforms + replay + stage buffers) | {v:.0f} ({v / raw:.2f}x raw) | - | - | - |")
+        lines.append(
+            f"| collection only, {c} collector (env + transforms + replay + stage buffers) | {v:.0f} ({v / raw:.2f}x raw) | - | - | - |"
+        )
     for r in res["learn"]:
         ratio = f"{r['over_plain']:.2f}x" if "over_plain" in r else "-"
         same = f"{r['over_plain_same_updates']:.2f}x" if "over_plain_same_updates" in r else "-"
-        lines.append(f"| phase 1, {r['algo']} (batch {r['batch_size']}, UTD {r['utd']:g}), {r['collector']} collector, "
-                     f"{r.get('precision', 'fp32')} | "
-                     f"{r['env_steps_per_s']:.1f} | {r['updates_per_s']:.1f} | {ratio} | {same} |")
+        lines.append(
+            f"| phase 1, {r['algo']} (batch {r['batch_size']}, UTD {r['utd']:g}), {r['collector']} collector, "
+            f"{r.get('precision', 'fp32')} | "
+            f"{r['env_steps_per_s']:.1f} | {r['updates_per_s']:.1f} | {ratio} | {same} |"
+        )
     for q in res["plain"]:
         spread = f" (before {q['before']:.1f}, after {q['after']:.1f})" if "before" in q else ""
         disc = f", {q['disc_updates']:g} discriminator steps per update" if q.get("disc_updates", 1) != 1 else ""
         who = f"; reference of {', '.join(q['reference_for'])}" if q.get("reference_for") else ""
-        lines.append(f"| plain single-file PyTorch DrS loop (batch {q['batch_size']}, UTD {q.get('utd', 0.5):g}{disc}), fp32{who} | "
-                     f"{q['env_steps_per_s']:.1f}{spread} | {q['updates_per_s_overall']:.1f} | "
-                     f"{'1.00x' if _paper_settings(q) else '-'} | {'1.00x' if not _paper_settings(q) else '-'} |")
+        lines.append(
+            f"| plain single-file PyTorch DrS loop (batch {q['batch_size']}, UTD {q.get('utd', 0.5):g}{disc}), fp32{who} | "
+            f"{q['env_steps_per_s']:.1f}{spread} | {q['updates_per_s_overall']:.1f} | "
+            f"{'1.00x' if _paper_settings(q) else '-'} | {'1.00x' if not _paper_settings(q) else '-'} |"
+        )
     for c in res.get("components", []):
-        lines += ["", f"Learner parts, {c['algo']} (batch {c['batch_size']}), ms per call:", "",
-                  f"- SAC update (sample, reward recomputation, loss, backward, Adam, target update): {c['sac_update_ms']:.1f} ms eager"
-                  + "".join(f", {ms:.1f} ms {p}" for p, ms in (c.get("sac_update_ms_by_precision") or {}).items() if p != "fp32")
-                  + (f", {c['sac_update_compiled_ms']:.1f} ms with `algo.compile=true` (compiled in {c['compile_s']:.0f} s)"
-                     if "sac_update_compiled_ms" in c else f" (compile failed: {c['compile_error']})" if "compile_error" in c else ""),
-                  f"- reward recomputation on one SAC batch (all discriminators, one pass): {c['reward_recompute_ms']:.2f} ms",
-                  f"- discriminator update (one batch per stage): {c['disc_update_ms']:.2f} ms", "",
-                  "| stage-buffer transitions | draw one discriminator batch (ms) | file a 50-step episode + draw (ms) |", "|---|---|---|"]
-        lines += [f"| {s['transitions']:,} | {s['sample_ms']:.3f} | {s['file_episode_and_sample_ms']:.3f} |" for s in c["stage_sample"]]
+        lines += [
+            "",
+            f"Learner parts, {c['algo']} (batch {c['batch_size']}), ms per call:",
+            "",
+            f"- SAC update (sample, reward recomputation, loss, backward, Adam, target update): {c['sac_update_ms']:.1f} ms eager"
+            + "".join(
+                f", {ms:.1f} ms {p}" for p, ms in (c.get("sac_update_ms_by_precision") or {}).items() if p != "fp32"
+            )
+            + (
+                f", {c['sac_update_compiled_ms']:.1f} ms with `algo.compile=true` (compiled in {c['compile_s']:.0f} s)"
+                if "sac_update_compiled_ms" in c
+                else f" (compile failed: {c['compile_error']})"
+                if "compile_error" in c
+                else ""
+            ),
+            f"- reward recomputation on one SAC batch (all discriminators, one pass): {c['reward_recompute_ms']:.2f} ms",
+            f"- discriminator update (one batch per stage): {c['disc_update_ms']:.2f} ms",
+            "",
+            "| stage-buffer transitions | draw one discriminator batch (ms) | file a 50-step episode + draw (ms) |",
+            "|---|---|---|",
+        ]
+        lines += [
+            f"| {s['transitions']:,} | {s['sample_ms']:.3f} | {s['file_episode_and_sample_ms']:.3f} |"
+            for s in c["stage_sample"]
+        ]
     if res.get("roofline"):
-        lines += ["", "Roofline: what this machine allows any implementation of the same algorithm "
-                  "(matrix products only, at the measured GEMM rate, perfect scaling, simulator fully overlapped):", "",
-                  "| config | precision | GFLOP per SAC update | GEMM GFLOP/s, 1 thread / all | update ms: bound (all cores) / measured | "
-                  "env steps/s bound | plain loop | bound / plain |", "|---|---|---|---|---|---|---|---|"]
+        lines += [
+            "",
+            "Roofline: what this machine allows any implementation of the same algorithm "
+            "(matrix products only, at the measured GEMM rate, perfect scaling, simulator fully overlapped):",
+            "",
+            "| config | precision | GFLOP per SAC update | GEMM GFLOP/s, 1 thread / all | update ms: bound (all cores) / measured | "
+            "env steps/s bound | plain loop | bound / plain |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
         for r in res["roofline"]:
             gall = r[f"gemm_gflops_{r['cores']}_threads"]
-            lines.append(f"| {r['algo']} (batch {r['batch_size']}, UTD {r['utd']}) | {r.get('precision', 'fp32')} | {r['gflop_per_update']:.2f} | "
-                         f"{r['gemm_gflops_1_thread']:.0f} / {gall:.0f} | {r['update_ms_lower_bound_all_cores']:.1f} / "
-                         f"{r['update_ms_measured']:.1f} | {r['env_steps_per_s_bound']:.1f} | "
-                         f"{r.get('plain_env_steps_per_s', float('nan')):.1f} | {r.get('bound_over_plain', float('nan')):.2f}x |")
+            lines.append(
+                f"| {r['algo']} (batch {r['batch_size']}, UTD {r['utd']}) | {r.get('precision', 'fp32')} | {r['gflop_per_update']:.2f} | "
+                f"{r['gemm_gflops_1_thread']:.0f} / {gall:.0f} | {r['update_ms_lower_bound_all_cores']:.1f} / "
+                f"{r['update_ms_measured']:.1f} | {r['env_steps_per_s_bound']:.1f} | "
+                f"{r.get('plain_env_steps_per_s', float('nan')):.1f} | {r.get('bound_over_plain', float('nan')):.2f}x |"
+            )
     if "checkpoint" in res:
         c = res["checkpoint"]
-        lines += ["", f"Training-state checkpoint of a run holding {c['transitions']:,} transitions (replay buffer and stage buffers "
-                  f"each): {c['bytes'] / 1e6:.0f} MB on disk, written in {c['write_s']:.1f} s, resumed (loaded) in {c['resume_s']:.1f} s."]
+        lines += [
+            "",
+            f"Training-state checkpoint of a run holding {c['transitions']:,} transitions (replay buffer and stage buffers "
+            f"each): {c['bytes'] / 1e6:.0f} MB on disk, written in {c['write_s']:.1f} s, resumed (loaded) in {c['resume_s']:.1f} s.",
+        ]
     return "\n".join(lines) + "\n"
 
 

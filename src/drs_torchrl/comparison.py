@@ -18,6 +18,7 @@ default, e.g. ``drs`` vs ``semi_sparse``), and writes:
 Runs of unequal length are averaged over the runs that reached each step (the ``n`` column).
 Everything here reads files only: it works on finished, interrupted and still-running runs.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -43,9 +44,9 @@ class RunRecord:
     path: Path
     label: str
     seed: object
-    eval: "object"          # pandas DataFrame (eval.csv), or None when no evaluation ran yet
-    train: "object"         # pandas DataFrame (train.csv)
-    stages: tuple | None = None   # the run's stage indicators, success last (None when its config does not say)
+    eval: "object"  # pandas DataFrame (eval.csv), or None when no evaluation ran yet
+    train: "object"  # pandas DataFrame (train.csv)
+    stages: tuple | None = None  # the run's stage indicators, success last (None when its config does not say)
 
 
 @dataclass
@@ -58,8 +59,10 @@ def _lookup(cfg: dict, dotted: str, run: Path):
     node = cfg
     for part in dotted.split("."):
         if not isinstance(node, dict) or part not in node:
-            raise CompareError(f"{run}/config.yaml has no key {dotted!r} to group by "
-                               f"(keys at that level: {sorted(node) if isinstance(node, dict) else node!r})")
+            raise CompareError(
+                f"{run}/config.yaml has no key {dotted!r} to group by "
+                f"(keys at that level: {sorted(node) if isinstance(node, dict) else node!r})"
+            )
         node = node[part]
     return node
 
@@ -67,7 +70,6 @@ def _lookup(cfg: dict, dotted: str, run: Path):
 def load_run(run: Path, group_by: tuple[str, ...] = DEFAULT_GROUP_BY, label: str | None = None) -> RunRecord:
     """One run directory: its CSVs and its group label (the values of ``group_by`` in its config, or
     ``label`` when given, e.g. a study's run name without its seed)."""
-    import pandas as pd
     from omegaconf import OmegaConf
 
     run = Path(run)
@@ -77,15 +79,23 @@ def load_run(run: Path, group_by: tuple[str, ...] = DEFAULT_GROUP_BY, label: str
     if not cfg_path.exists():
         cfg_path = run / ".hydra" / "config.yaml"
     if not cfg_path.exists():
-        raise CompareError(f"{run} has neither config.yaml nor .hydra/config.yaml: cannot tell which group it belongs to")
+        raise CompareError(
+            f"{run} has neither config.yaml nor .hydra/config.yaml: cannot tell which group it belongs to"
+        )
     cfg = OmegaConf.to_container(OmegaConf.load(cfg_path), resolve=False) or {}
     if label is None:
         label = " ".join(f"{_lookup(cfg, k, run)}" for k in group_by)
     ev = read_run_csv(run / "eval.csv") if (run / "eval.csv").exists() else None
     if ev is not None and ev.empty:
         ev = None
-    return RunRecord(path=run, label=label, seed=cfg.get("seed"), eval=ev, train=read_run_csv(run / "train.csv"),
-                     stages=_run_stages(cfg))
+    return RunRecord(
+        path=run,
+        label=label,
+        seed=cfg.get("seed"),
+        eval=ev,
+        train=read_run_csv(run / "train.csv"),
+        stages=_run_stages(cfg),
+    )
 
 
 def _run_stages(cfg: dict) -> tuple | None:
@@ -125,17 +135,22 @@ def aggregate(frames: list, column: str) -> "object":
     import pandas as pd
 
     # a resumed run may log a step twice (the row before the interruption and after): keep the later one
-    parts = [f[["step", column]].dropna().drop_duplicates("step", keep="last").set_index("step")[column]
-             for f in frames if f is not None and column in f]
+    parts = [
+        f[["step", column]].dropna().drop_duplicates("step", keep="last").set_index("step")[column]
+        for f in frames
+        if f is not None and column in f
+    ]
     if not parts:
         return pd.DataFrame(columns=["step", "n", "mean", "std"])
     wide = pd.concat(parts, axis=1)
-    out = pd.DataFrame({
-        "step": wide.index.to_numpy(),
-        "n": wide.notna().sum(axis=1).to_numpy(),
-        "mean": wide.mean(axis=1, skipna=True).to_numpy(),
-        "std": wide.std(axis=1, skipna=True, ddof=0).fillna(0.0).to_numpy(),
-    })
+    out = pd.DataFrame(
+        {
+            "step": wide.index.to_numpy(),
+            "n": wide.notna().sum(axis=1).to_numpy(),
+            "mean": wide.mean(axis=1, skipna=True).to_numpy(),
+            "std": wide.std(axis=1, skipna=True, ddof=0).fillna(0.0).to_numpy(),
+        }
+    )
     return out.sort_values("step").reset_index(drop=True)
 
 
@@ -166,8 +181,9 @@ def success_auc(steps: np.ndarray, success: np.ndarray, horizon: float) -> float
     return float(np.sum((y[1:] + y[:-1]) * np.diff(x)) / 2.0 / (x[-1] - x[0]))
 
 
-def first_step_over(groups_runs: list[RunRecord], threshold: float = 0.5, source: str = "eval",
-                    column: str = "success_rate") -> float | None:
+def first_step_over(
+    groups_runs: list[RunRecord], threshold: float = 0.5, source: str = "eval", column: str = "success_rate"
+) -> float | None:
     """The first evaluation step at which the mean success over all of a group's runs is >= threshold.
 
     Only steps every run of the group has evaluated count (a mean over the runs that got there
@@ -198,20 +214,22 @@ def summary_rows(groups: list[Group]) -> list[dict]:
                 aucs.append(success_auc(x, s, horizon))
         full = [r for r in g.runs if r.eval is not None]
         aucs = [a for a in aucs if a == a]
-        rows.append({
-            "group": g.label,
-            "runs": len(g.runs),
-            "seeds": [r.seed for r in g.runs],
-            "steps": int(min(int(r.train["step"].iloc[-1]) for r in g.runs)),
-            "final": finals,
-            "final_mean": float(np.mean(finals)) if finals else float("nan"),
-            "final_std": float(np.std(finals)) if finals else float("nan"),
-            "last3_mean": float(np.mean(last3)) if last3 else float("nan"),
-            "auc_horizon": float(horizon),
-            "auc_mean": float(np.mean(aucs)) if aucs else float("nan"),
-            "auc_std": float(np.std(aucs)) if aucs else float("nan"),
-            "first_step_0_5": first_step_over(full) if len(full) == len(g.runs) and full else None,
-        })
+        rows.append(
+            {
+                "group": g.label,
+                "runs": len(g.runs),
+                "seeds": [r.seed for r in g.runs],
+                "steps": int(min(int(r.train["step"].iloc[-1]) for r in g.runs)),
+                "final": finals,
+                "final_mean": float(np.mean(finals)) if finals else float("nan"),
+                "final_std": float(np.std(finals)) if finals else float("nan"),
+                "last3_mean": float(np.mean(last3)) if last3 else float("nan"),
+                "auc_horizon": float(horizon),
+                "auc_mean": float(np.mean(aucs)) if aucs else float("nan"),
+                "auc_std": float(np.std(aucs)) if aucs else float("nan"),
+                "first_step_0_5": first_step_over(full) if len(full) == len(g.runs) and full else None,
+            }
+        )
     return rows
 
 
@@ -225,8 +243,13 @@ def group_style(i: int) -> dict:
     return {"color": f"C{i % 10}", "linestyle": ("-", "--", ":", "-.")[(i // 10) % 4]}
 
 
-def compare(run_dirs: list[Path], out_dir: Path, group_by: tuple[str, ...] = DEFAULT_GROUP_BY,
-            labels: list[str] | None = None, title: str = "") -> dict[str, Path]:
+def compare(
+    run_dirs: list[Path],
+    out_dir: Path,
+    group_by: tuple[str, ...] = DEFAULT_GROUP_BY,
+    labels: list[str] | None = None,
+    title: str = "",
+) -> dict[str, Path]:
     """Group ``run_dirs`` (by ``group_by``, or by ``labels``, one per run), write ``compare.png``,
     ``compare.csv`` and ``compare.md`` into ``out_dir``; ``title`` heads the figure and the table."""
     import matplotlib
@@ -240,8 +263,9 @@ def compare(run_dirs: list[Path], out_dir: Path, group_by: tuple[str, ...] = DEF
         raise CompareError("no run directories given")
     if labels is not None and len(labels) != len(run_dirs):
         raise CompareError(f"{len(labels)} labels for {len(run_dirs)} run directories")
-    groups = group_runs([load_run(Path(r), tuple(group_by), None if labels is None else labels[i])
-                         for i, r in enumerate(run_dirs)])
+    groups = group_runs(
+        [load_run(Path(r), tuple(group_by), None if labels is None else labels[i]) for i, r in enumerate(run_dirs)]
+    )
     title_key = ", ".join(group_by) if labels is None else "run name without its seed"
     # the last reach column is the success stage, already drawn as success_rate
     eval_stages = _stage_columns([r.eval for g in groups for r in g.runs])[:-1]
@@ -262,59 +286,99 @@ def compare(run_dirs: list[Path], out_dir: Path, group_by: tuple[str, ...] = DEF
             if agg.empty:
                 continue
             style = group_style(i)
-            line, = ax.plot(agg["step"], agg["mean"], **style, marker="o" if source == "eval" else None,
-                            ms=3, label=f"{g.label} (n={len(g.runs)})")
+            (line,) = ax.plot(
+                agg["step"],
+                agg["mean"],
+                **style,
+                marker="o" if source == "eval" else None,
+                ms=3,
+                label=f"{g.label} (n={len(g.runs)})",
+            )
             legend.setdefault(i, line)
-            ax.fill_between(agg["step"], agg["mean"] - agg["std"], agg["mean"] + agg["std"], color=style["color"],
-                            alpha=0.2)
+            ax.fill_between(
+                agg["step"], agg["mean"] - agg["std"], agg["mean"] + agg["std"], color=style["color"], alpha=0.2
+            )
             for row in agg.itertuples(index=False):
-                records.append({"group": g.label, "source": source, "metric": column, "step": int(row.step),
-                                "n": int(row.n), "mean": float(row.mean), "std": float(row.std)})
+                records.append(
+                    {
+                        "group": g.label,
+                        "source": source,
+                        "metric": column,
+                        "step": int(row.step),
+                        "n": int(row.n),
+                        "mean": float(row.mean),
+                        "std": float(row.std),
+                    }
+                )
         ax.set_title(panel_title, fontsize=10)
         ax.set_xlabel("env steps")
         ax.xaxis.set_major_formatter(FuncFormatter(_steps_label))
         ax.set_ylim(-0.02, 1.02)
         ax.grid(alpha=0.3)
-    for ax in axes.ravel()[len(panels):]:
+    for ax in axes.ravel()[len(panels) :]:
         ax.set_visible(False)
-    fig.suptitle((f"{title}\n" if title else "") + f"mean and std over the runs of each group ({title_key})", fontsize=10)
+    fig.suptitle(
+        (f"{title}\n" if title else "") + f"mean and std over the runs of each group ({title_key})", fontsize=10
+    )
     fig.tight_layout()
     if legend:
         handles = [legend[i] for i in sorted(legend)]
-        fig.legend(handles, [h.get_label() for h in handles], loc="center left", bbox_to_anchor=(1.0, 0.5),
-                   fontsize=9, frameon=False)
+        fig.legend(
+            handles,
+            [h.get_label() for h in handles],
+            loc="center left",
+            bbox_to_anchor=(1.0, 0.5),
+            fontsize=9,
+            frameon=False,
+        )
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {"png": out_dir / "compare.png", "csv": out_dir / "compare.csv", "md": out_dir / "compare.md"}
     fig.savefig(paths["png"], dpi=110, bbox_inches="tight")
     plt.close(fig)
     pd.DataFrame.from_records(records, columns=["group", "source", "metric", "step", "n", "mean", "std"]).to_csv(
-        paths["csv"], index=False)
+        paths["csv"], index=False
+    )
     rows = summary_rows(groups)
     horizon = rows[0]["auc_horizon"] if rows else float("nan")
     h = _steps_label(horizon) if horizon == horizon else "-"
     lines = [f"**{title}**", ""] if title else []
-    lines += [f"| {' / '.join(group_by) if labels is None else 'runs'} | runs (seeds) | env steps (shortest run) | final eval success per run | "
-              f"mean +- std | mean of the last 3 evals | success AUC to {h} (mean +- std) | mean success >= 0.5 first at |",
-              "|---|---|---|---|---|---|---|---|"]
+    lines += [
+        f"| {' / '.join(group_by) if labels is None else 'runs'} | runs (seeds) | env steps (shortest run) | final eval success per run | "
+        f"mean +- std | mean of the last 3 evals | success AUC to {h} (mean +- std) | mean success >= 0.5 first at |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for row in rows:
         finals = ", ".join(f"{x:.2f}" for x in row["final"]) or "(no eval yet)"
         ms = f"{row['final_mean']:.2f} +- {row['final_std']:.2f}" if row["final"] else "-"
         l3 = f"{row['last3_mean']:.2f}" if row["final"] else "-"
         auc = f"{row['auc_mean']:.3f} +- {row['auc_std']:.3f}" if row["auc_mean"] == row["auc_mean"] else "-"
-        first = (_steps_label(row["first_step_0_5"]) if row["first_step_0_5"] is not None
-                 else (f"not by {_steps_label(row['steps'])}" if row["final"] else "-"))
+        first = (
+            _steps_label(row["first_step_0_5"])
+            if row["first_step_0_5"] is not None
+            else (f"not by {_steps_label(row['steps'])}" if row["final"] else "-")
+        )
         seeds = ", ".join(str(s) for s in row["seeds"])
-        lines.append(f"| {row['group']} | {row['runs']} ({seeds}) | {row['steps']} | {finals} | {ms} | {l3} | {auc} | {first} |")
+        lines.append(
+            f"| {row['group']} | {row['runs']} ({seeds}) | {row['steps']} | {finals} | {ms} | {l3} | {auc} | {first} |"
+        )
     if train_stages:  # when each stage is first reached in half the training episodes (issue 12's table)
         cols = [*train_stages, "success_rate"]
-        lines += ["", "Training episodes (rolling window), mean over each group's runs: the first step at which it passes 0.5",
-                  "", "| group | " + " | ".join(_stage_label(every, c) for c in train_stages) + " | success |",
-                  "|---|" + "---|" * len(cols)]
+        lines += [
+            "",
+            "Training episodes (rolling window), mean over each group's runs: the first step at which it passes 0.5",
+            "",
+            "| group | " + " | ".join(_stage_label(every, c) for c in train_stages) + " | success |",
+            "|---|" + "---|" * len(cols),
+        ]
         for g in groups:
             firsts = [first_step_over(g.runs, source="train", column=c) for c in cols]
             end = _steps_label(min(int(r.train["step"].iloc[-1]) for r in g.runs))
-            lines.append(f"| {g.label} | " + " | ".join(_steps_label(f) if f is not None else f"not by {end}" for f in firsts) + " |")
+            lines.append(
+                f"| {g.label} | "
+                + " | ".join(_steps_label(f) if f is not None else f"not by {end}" for f in firsts)
+                + " |"
+            )
     lines.append("")
     lines.append("Runs: " + ", ".join(f"`{r.path}`" for g in groups for r in g.runs))
     paths["md"].write_text("\n".join(lines) + "\n")
@@ -325,10 +389,16 @@ def compare(run_dirs: list[Path], out_dir: Path, group_by: tuple[str, ...] = DEF
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="drs-compare",
-        description="success-rate curves of drs-learn/drs-reuse runs, grouped by config keys, mean +- std over seeds")
+        description="success-rate curves of drs-learn/drs-reuse runs, grouped by config keys, mean +- std over seeds",
+    )
     p.add_argument("runs", nargs="+", type=Path, help="run directories (each with train.csv, eval.csv, config.yaml)")
-    p.add_argument("--group-by", nargs="+", default=list(DEFAULT_GROUP_BY), metavar="KEY",
-                   help="dotted config keys whose values name a group (default: reward.name), e.g. env.split reward.name")
+    p.add_argument(
+        "--group-by",
+        nargs="+",
+        default=list(DEFAULT_GROUP_BY),
+        metavar="KEY",
+        help="dotted config keys whose values name a group (default: reward.name), e.g. env.split reward.name",
+    )
     p.add_argument("--out", type=Path, default=Path("."), help="folder for compare.png / .csv / .md (default: .)")
     a = p.parse_args(argv)
     try:

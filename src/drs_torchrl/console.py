@@ -18,6 +18,7 @@ survives a closed pipe.
   its file descriptor is pointed at ``/dev/null`` and the run carries on, saves, and exits with its
   own status.
 """
+
 from __future__ import annotations
 
 import collections
@@ -64,8 +65,10 @@ def one_line(text) -> str:
         parts.append(line)
     if options:
         parts[-1] += " " + ", ".join(options)
-    return "".join(p + ("" if i == len(parts) - 1 else (" " if p.endswith((".", ":", ";", ",")) else "; "))
-                   for i, p in enumerate(parts))
+    return "".join(
+        p + ("" if i == len(parts) - 1 else (" " if p.endswith((".", ":", ";", ",")) else "; "))
+        for i, p in enumerate(parts)
+    )
 
 
 _OS_HINTS = {
@@ -85,7 +88,9 @@ def user_error_message(exc: BaseException) -> str | None:
         return str(exc.args[0] if isinstance(exc, KeyError) and exc.args else exc)
     if isinstance(exc, _library_user_errors()):
         cause = exc.__cause__  # Hydra's "Could not override 'x'" is caused by OmegaConf's "Key 'x' is not in struct"
-        return one_line(exc) + (f" ({one_line(cause)})" if cause is not None and type(cause).__module__.startswith("omegaconf") else "")
+        return one_line(exc) + (
+            f" ({one_line(cause)})" if cause is not None and type(cause).__module__.startswith("omegaconf") else ""
+        )
     if isinstance(exc, OSError) and (exc.filename or exc.errno in (errno.ENOSPC, errno.EDQUOT)):
         msg = f"{exc.filename}: {exc.strerror or exc}" if exc.filename else str(exc.strerror or exc)
         if exc.errno in (errno.ENOSPC, errno.EDQUOT) and exc.filename:
@@ -110,8 +115,12 @@ def _close_env_ids(message: str) -> str:
         return ""
     registry = sys.modules["gymnasium"].registry
     close = difflib.get_close_matches(m.group(1), list(registry), n=3, cutoff=0.5)
-    return f"; did you mean {' or '.join(close)}?" if close else "; see the ids ManiSkill registers: python -c " \
-        "\"import gymnasium, mani_skill.envs; print(sorted(gymnasium.registry))\""
+    return (
+        f"; did you mean {' or '.join(close)}?"
+        if close
+        else "; see the ids ManiSkill registers: python -c "
+        '"import gymnasium, mani_skill.envs; print(sorted(gymnasium.registry))"'
+    )
 
 
 def crash_log_dir() -> str:
@@ -135,14 +144,18 @@ def report_failure(prog: str, exc: BaseException) -> int:
         where = f"the traceback above is kept in {log}"
     except OSError:
         where = "the traceback is above"
-    print(f"{prog}: internal error ({type(exc).__name__}), a bug rather than your input; {where}: please report it",
-          file=sys.stderr, flush=True)
+    print(
+        f"{prog}: internal error ({type(exc).__name__}), a bug rather than your input; {where}: please report it",
+        file=sys.stderr,
+        flush=True,
+    )
     return 1
 
 
 def console_script(prog: str, *, quiet: bool = True):
     """Decorator of a console script's entry function (see the module docstring). ``quiet``: filter the
     libraries' messages now (Hydra apps pass False and decide once their config says ``logger.library_messages``)."""
+
     def wrap(fn):
         @functools.wraps(fn)
         def main(*args, **kwargs):
@@ -171,7 +184,11 @@ def console_script(prog: str, *, quiet: bool = True):
 
 
 # (logger name, level below which its records are dropped)
-_LOGGERS = {"mani_skill ": logging.ERROR, "mani_skill": logging.ERROR, "torchrl": logging.WARNING}  # ManiSkill's name ends in a space
+_LOGGERS = {
+    "mani_skill ": logging.ERROR,
+    "mani_skill": logging.ERROR,
+    "torchrl": logging.WARNING,
+}  # ManiSkill's name ends in a space
 # warning messages (regexes, matched at the start) that are the libraries' business, not the user's
 _WARNINGS = [
     r"init_random_frames .* is not exactly a multiple of frames_per_batch",
@@ -216,7 +233,9 @@ def quiet_libraries() -> None:
             logger.addFilter(_AtLeast(level))
     for msg in _WARNINGS:
         warnings.filterwarnings("ignore", message=msg)
-    warnings.filterwarnings("ignore", category=DeprecationWarning, module=r"(gymnasium|mani_skill|sapien|torchrl|tensordict)")
+    warnings.filterwarnings(
+        "ignore", category=DeprecationWarning, module=r"(gymnasium|mani_skill|sapien|torchrl|tensordict)"
+    )
 
 
 def in_quiet_worker(make, *args, **kwargs):

@@ -31,6 +31,7 @@ trained RL agent"). ``drs-demos --from-policy RUN_DIR`` does that for any family
 without a solver (``turn_valve``, ``half_cheetah``, the asset-backed ones): it rolls out the run's
 SAC policy in the family's env and keeps the episodes that succeed (:func:`record_policy_demos`).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -63,7 +64,9 @@ class DemoError(UserError, ValueError):
 def _solver(family: TaskFamily):
     ref = family.extra.get("demo_solver")
     if not ref:
-        raise DemoError(f"family {family.name!r} has no motion-planning solver; load ManiSkill trajectories or record your own")
+        raise DemoError(
+            f"family {family.name!r} has no motion-planning solver; load ManiSkill trajectories or record your own"
+        )
     module, _, fn = ref.partition(":")
     return ref, getattr(importlib.import_module(module), fn)
 
@@ -80,8 +83,17 @@ def _successful_episode(states: TensorDict, labeller, index: int) -> TensorDict 
     return states
 
 
-def record_demos(family: TaskFamily, variant: str, num: int, *, seed: int = 0, variant_overrides: dict | None = None,
-                 max_tries: int | None = None, progress: bool = True, control_mode: str = "pd_joint_pos") -> tuple[TensorDict, dict]:
+def record_demos(
+    family: TaskFamily,
+    variant: str,
+    num: int,
+    *,
+    seed: int = 0,
+    variant_overrides: dict | None = None,
+    max_tries: int | None = None,
+    progress: bool = True,
+    control_mode: str = "pd_joint_pos",
+) -> tuple[TensorDict, dict]:
     """Run the family's solver until ``num`` successful episodes are recorded; returns (states, meta).
 
     The solver plans in joint-position control. ``control_mode`` other than ``"pd_joint_pos"`` (e.g. the
@@ -96,21 +108,39 @@ def record_demos(family: TaskFamily, variant: str, num: int, *, seed: int = 0, v
     from drs_torchrl.envs.doctor import ensure_env_ready
 
     if family.backend != "maniskill":
-        raise DemoError(f"family {family.name!r} ({family.backend}) has no motion-planning solver; drs-demos records ManiSkill families")
+        raise DemoError(
+            f"family {family.name!r} ({family.backend}) has no motion-planning solver; drs-demos records ManiSkill families"
+        )
     args = family.env_args(variant, variant_overrides)  # train/test: the split's variants, drawn per episode
     env_id, kwargs = args["env_id"], args["env_kwargs"]
     ensure_env_ready(env_id, kwargs)
     ref, solve = _solver(family)
-    env = gym.make(env_id, obs_mode="state", control_mode="pd_joint_pos", num_envs=1, sim_backend="physx_cpu",
-                   render_mode=None, max_episode_steps=10 * family.max_episode_steps, **kwargs)
+    env = gym.make(
+        env_id,
+        obs_mode="state",
+        control_mode="pd_joint_pos",
+        num_envs=1,
+        sim_backend="physx_cpu",
+        render_mode=None,
+        max_episode_steps=10 * family.max_episode_steps,
+        **kwargs,
+    )
     recorder = _Recorder(env, family.all_info_keys, family.task_observation_key)
     labeller = StageIndicator(family.stage_keys)
     target = None
     if control_mode != "pd_joint_pos":
         from mani_skill.trajectory.utils.actions.conversion import from_pd_joint_pos
 
-        target_env = gym.make(env_id, obs_mode="state", control_mode=control_mode, num_envs=1, sim_backend="physx_cpu",
-                              render_mode=None, max_episode_steps=40 * family.max_episode_steps, **kwargs)
+        target_env = gym.make(
+            env_id,
+            obs_mode="state",
+            control_mode=control_mode,
+            num_envs=1,
+            sim_backend="physx_cpu",
+            render_mode=None,
+            max_episode_steps=40 * family.max_episode_steps,
+            **kwargs,
+        )
         target = _Recorder(target_env, family.all_info_keys, family.task_observation_key)
     state_keys = [k for k in ("observation", "stage_indicators", family.task_observation_key) if k]
     episodes, lengths, seeds = [], [], []
@@ -120,7 +150,9 @@ def record_demos(family: TaskFamily, variant: str, num: int, *, seed: int = 0, v
     planner_said: collections.Counter = collections.Counter()  # its prints ("screw plan failed"), shown as a count
     while len(episodes) < num:
         if tries >= max_tries:
-            raise RuntimeError(f"the solver succeeded in only {len(episodes)} of {tries} tries on {family.name}/{variant}")
+            raise RuntimeError(
+                f"the solver succeeded in only {len(episodes)} of {tries} tries on {family.name}/{variant}"
+            )
         tries += 1
         try:
             with library_prints(planner_said):
@@ -140,7 +172,10 @@ def record_demos(family: TaskFamily, variant: str, num: int, *, seed: int = 0, v
             try:
                 from_pd_joint_pos(control_mode, actions, recorder, target)
             except Exception as exc:
-                print(f"  seed {s}: conversion to {control_mode} failed ({exc.__class__.__name__}); skipping", file=sys.stderr)
+                print(
+                    f"  seed {s}: conversion to {control_mode} failed ({exc.__class__.__name__}); skipping",
+                    file=sys.stderr,
+                )
                 states = None
             else:
                 states, rec = target.states(), target
@@ -150,7 +185,9 @@ def record_demos(family: TaskFamily, variant: str, num: int, *, seed: int = 0, v
         states = _successful_episode(states, labeller, len(episodes))
         if states is None:
             continue
-        states = _with_previous_states(states, rec._reset_obs, [k for k in state_keys if k in states.keys()] + ["stage"])
+        states = _with_previous_states(
+            states, rec._reset_obs, [k for k in state_keys if k in states.keys()] + ["stage"]
+        )
         episodes.append(states)
         lengths.append(states.shape[0])
         seeds.append(s - 1)
@@ -160,25 +197,47 @@ def record_demos(family: TaskFamily, variant: str, num: int, *, seed: int = 0, v
         print(file=sys.stderr)
     if planner_said:
         said = ", ".join(f"{text!r} x{n}" for text, n in planner_said.most_common(3))
-        print(f"  the motion planner reported {sum(planner_said.values())} failed plans ({said}); "
-              "DRS_LIBRARY_MESSAGES=1 shows them as they happen", file=sys.stderr)
+        print(
+            f"  the motion planner reported {sum(planner_said.values())} failed plans ({said}); "
+            "DRS_LIBRARY_MESSAGES=1 shows them as they happen",
+            file=sys.stderr,
+        )
     env.close()
     if target is not None:
         target.env.close()
     data = torch.cat(episodes, 0)
     meta = {
-        "format": DEMO_FORMAT, "version": DEMO_VERSION, "family": family.name, "env_id": env_id,
-        "variant": variant, "variant_kwargs": kwargs, "stage_keys": list(family.stage_keys),
-        "shapes": {k: int(data[k].shape[-1]) for k in ("observation", "stage_indicators", family.task_observation_key) if k},
-        "episodes": len(episodes), "lengths": lengths, "seeds": seeds, "solver": ref,
+        "format": DEMO_FORMAT,
+        "version": DEMO_VERSION,
+        "family": family.name,
+        "env_id": env_id,
+        "variant": variant,
+        "variant_kwargs": kwargs,
+        "stage_keys": list(family.stage_keys),
+        "shapes": {
+            k: int(data[k].shape[-1]) for k in ("observation", "stage_indicators", family.task_observation_key) if k
+        },
+        "episodes": len(episodes),
+        "lengths": lengths,
+        "seeds": seeds,
+        "solver": ref,
         "actions": {"control_mode": control_mode, "size": int(data["action"].shape[-1])},
     }
     return data, meta
 
 
-def record_policy_demos(policy_path: str | Path, variant: str | None = None, num: int = 100, *, seed: int = 0,
-                        variant_overrides: dict | None = None, deterministic: bool = True, max_episodes: int | None = None,
-                        progress: bool = True, task_observation: bool = False) -> tuple[TensorDict, dict]:
+def record_policy_demos(
+    policy_path: str | Path,
+    variant: str | None = None,
+    num: int = 100,
+    *,
+    seed: int = 0,
+    variant_overrides: dict | None = None,
+    deterministic: bool = True,
+    max_episodes: int | None = None,
+    progress: bool = True,
+    task_observation: bool = False,
+) -> tuple[TensorDict, dict]:
     """Roll out a trained ``drs-learn``/``drs-reuse`` policy until ``num`` episodes succeed; returns (states, meta).
 
     The env is the family's (``make_family_env``) with the run's controller, episode length and
@@ -206,15 +265,27 @@ def record_policy_demos(policy_path: str | Path, variant: str | None = None, num
     family = with_task_observation(family, env_cfg.get("task_observation") or task_observation)
     overrides = {**(env_cfg.get("variant_overrides") or {}), **(variant_overrides or {})}
     variant = variant or env_cfg.get("split") or "train"  # default: the split the policy was trained on
-    env = make_family_env(family, variant, variant_overrides=overrides or None, seed=seed,
-                          control_mode=env_cfg.get("control_mode"), max_episode_steps=env_cfg.get("max_episode_steps"))
+    env = make_family_env(
+        family,
+        variant,
+        variant_overrides=overrides or None,
+        seed=seed,
+        control_mode=env_cfg.get("control_mode"),
+        max_episode_steps=env_cfg.get("max_episode_steps"),
+    )
     try:
         actor, pmeta = load_policy(file, env.observation_spec, env.action_spec, family=family.name)
-        keys = [k for k in ("observation", *family.all_info_keys, family.task_observation_key)
-                if k and k in env.observation_spec.keys(True)]
+        keys = [
+            k
+            for k in ("observation", *family.all_info_keys, family.task_observation_key)
+            if k and k in env.observation_spec.keys(True)
+        ]
         labeller = StageIndicator(family.stage_keys)
-        reward_keys = [k for k in ("observation", "stage_indicators", family.task_observation_key, *family.reward_in_keys)
-                       if k and k in env.observation_spec.keys(True)]
+        reward_keys = [
+            k
+            for k in ("observation", "stage_indicators", family.task_observation_key, *family.reward_in_keys)
+            if k and k in env.observation_spec.keys(True)
+        ]
         reward_keys = list(dict.fromkeys(reward_keys))
         limit = int(getattr(env.base_env, "max_episode_steps", 0) or 0)  # the env's time limit, or -1/0: unknown
         if limit <= 0:
@@ -226,20 +297,31 @@ def record_policy_demos(policy_path: str | Path, variant: str | None = None, num
         with set_exploration_type(mode), torch.no_grad():
             while len(episodes) < num:
                 if tried >= max_episodes:
-                    raise RuntimeError(f"the policy succeeded in only {len(episodes)} of {tried} episodes on "
-                                       f"{family.name}/{variant}" + ("; try --stochastic" if deterministic else ""))
+                    raise RuntimeError(
+                        f"the policy succeeded in only {len(episodes)} of {tried} episodes on "
+                        f"{family.name}/{variant}" + ("; try --stochastic" if deterministic else "")
+                    )
                 td = env.rollout(limit, actor, break_when_any_done=True)
                 tried += 1
                 nxt = td["next"]
                 states = TensorDict({k: nxt[k].clone() for k in keys}, batch_size=[td.shape[0]])
                 # what (s, a) rewards such as GAIL's need: the action taken and the state it was taken in
                 states.set("action", td["action"].clone().float())
-                states.set("state", TensorDict({k: td[k].clone() for k in (*reward_keys, "stage") if k in td.keys()},
-                                               batch_size=[td.shape[0]]))
+                states.set(
+                    "state",
+                    TensorDict(
+                        {k: td[k].clone() for k in (*reward_keys, "stage") if k in td.keys()}, batch_size=[td.shape[0]]
+                    ),
+                )
                 states = _successful_episode(states, labeller, len(episodes))
                 if progress:
-                    print(f"\r  {len(episodes) + (states is not None)}/{num} demos from {tried} episodes "
-                          f"({time.time() - t0:.0f}s)", end="", file=sys.stderr, flush=True)
+                    print(
+                        f"\r  {len(episodes) + (states is not None)}/{num} demos from {tried} episodes "
+                        f"({time.time() - t0:.0f}s)",
+                        end="",
+                        file=sys.stderr,
+                        flush=True,
+                    )
                 if states is None:
                     continue
                 episodes.append(states)
@@ -252,16 +334,29 @@ def record_policy_demos(policy_path: str | Path, variant: str | None = None, num
     args = family.env_args(variant, overrides or None)
     data = torch.cat(episodes, 0)
     meta = {
-        "format": DEMO_FORMAT, "version": DEMO_VERSION, "family": family.name, "env_id": args.get("env_id", family.env_id),
-        "variant": variant, "variant_kwargs": args.get("env_kwargs", {}), "stage_keys": list(family.stage_keys),
-        "shapes": {k: int(data[k].shape[-1]) for k in ("observation", "stage_indicators", family.task_observation_key) if k},
-        "episodes": len(episodes), "lengths": lengths, "seeds": [seed] * len(episodes), "episode_indices": tried_ids,
+        "format": DEMO_FORMAT,
+        "version": DEMO_VERSION,
+        "family": family.name,
+        "env_id": args.get("env_id", family.env_id),
+        "variant": variant,
+        "variant_kwargs": args.get("env_kwargs", {}),
+        "stage_keys": list(family.stage_keys),
+        "shapes": {
+            k: int(data[k].shape[-1]) for k in ("observation", "stage_indicators", family.task_observation_key) if k
+        },
+        "episodes": len(episodes),
+        "lengths": lengths,
+        "seeds": [seed] * len(episodes),
+        "episode_indices": tried_ids,
         "max_episode_steps": limit,
         "solver": f"policy:{file} (frames {pmeta.get('frames')}, {'deterministic' if deterministic else 'stochastic'})",
-        "episodes_tried": tried, "success_rate": len(episodes) / tried,
+        "episodes_tried": tried,
+        "success_rate": len(episodes) / tried,
         # actions are the agent's own (its controller), with the states they were taken in ("state")
-        "actions": {"control_mode": env_cfg.get("control_mode") or args.get("control_mode") or family.control_mode,
-                    "size": int(data["action"].shape[-1])},
+        "actions": {
+            "control_mode": env_cfg.get("control_mode") or args.get("control_mode") or family.control_mode,
+            "size": int(data["action"].shape[-1]),
+        },
     }
     return data, meta
 
@@ -296,8 +391,10 @@ class _Recorder:
     def step(self, action):
         self._last_action = action
         obs, reward, terminated, truncated, info = self.env.step(action)
-        row = {"observation": torch.as_tensor(obs).reshape(-1).float(),
-               "action": torch.as_tensor(action).reshape(-1).float()}
+        row = {
+            "observation": torch.as_tensor(obs).reshape(-1).float(),
+            "action": torch.as_tensor(action).reshape(-1).float(),
+        }
         for k in self.info_keys:
             row[k] = torch.as_tensor(info[k]).reshape(1).bool()
         if self.task_key:  # the robot-agnostic reward input of families such as cross_robot
@@ -308,7 +405,9 @@ class _Recorder:
     def states(self) -> TensorDict | None:
         if not self._rows:
             return None
-        return TensorDict({k: torch.stack([r[k] for r in self._rows]) for k in self._rows[0]}, batch_size=[len(self._rows)])
+        return TensorDict(
+            {k: torch.stack([r[k] for r in self._rows]) for k in self._rows[0]}, batch_size=[len(self._rows)]
+        )
 
     def actions(self) -> list:
         return [r["action"].numpy() for r in self._rows]
@@ -317,8 +416,9 @@ class _Recorder:
 def _with_previous_states(states: TensorDict, reset_obs: torch.Tensor, keys) -> TensorDict:
     """Add ``state``: for each row, the reward inputs and stage of the state its ``action`` was taken in
     (the previous row's; for the first, the reset observation at stage 0)."""
-    first = TensorDict({k: (reset_obs if k == "observation" else torch.zeros_like(states[k][0])) for k in keys},
-                       batch_size=[])
+    first = TensorDict(
+        {k: (reset_obs if k == "observation" else torch.zeros_like(states[k][0])) for k in keys}, batch_size=[]
+    )
     prev = torch.cat([first.unsqueeze(0), states[:-1].select(*keys)], 0)
     states.set("state", prev)
     return states
@@ -328,8 +428,9 @@ def check_demos_out(path: str | Path) -> Path:
     """``path`` if demonstrations can be written there: new, or demonstrations to replace (never another folder)."""
     path = check_writable(path, "--out", folder=True)
     if path.exists() and any(path.iterdir()) and not (path / "meta.json").is_file():
-        raise DemoError(f"--out {path} is a folder that does not hold demonstrations; give a new path such as "
-                        f"{path / 'my.demos'}")
+        raise DemoError(
+            f"--out {path} is a folder that does not hold demonstrations; give a new path such as {path / 'my.demos'}"
+        )
     return path
 
 
@@ -360,22 +461,28 @@ def load_demos(path: str | Path) -> tuple[list[TensorDict], dict]:
     try:
         meta = json.loads((path / "meta.json").read_text())
     except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise DemoError(f"{path / 'meta.json'} is damaged ({exc.__class__.__name__}: {exc}); record the "
-                        "demonstrations again with drs-demos") from None
+        raise DemoError(
+            f"{path / 'meta.json'} is damaged ({exc.__class__.__name__}: {exc}); record the "
+            "demonstrations again with drs-demos"
+        ) from None
     if not isinstance(meta, dict) or meta.get("format") != DEMO_FORMAT:
         raise DemoError(f"{path}: unknown format {meta.get('format')!r}")
     if int(meta.get("version", 99)) > DEMO_VERSION:
-        raise DemoError(f"{path} has demo format version {meta['version']}, newer than this drs-torchrl reads ({DEMO_VERSION})")
+        raise DemoError(
+            f"{path} has demo format version {meta['version']}, newer than this drs-torchrl reads ({DEMO_VERSION})"
+        )
     try:
         states = load_memmap_checked(path / "states").clone()
     except Exception as exc:
         raise DemoError(f"{path}: the states cannot be read (corrupt or truncated?): {exc}") from exc
     missing = [k for k in ("family", "stage_keys", "shapes") if k not in meta]
     if missing:
-        raise DemoError(f"{path / 'meta.json'} is damaged: it lacks {missing}; record the demonstrations again with drs-demos")
+        raise DemoError(
+            f"{path / 'meta.json'} is damaged: it lacks {missing}; record the demonstrations again with drs-demos"
+        )
     ep = states["episode"]
     bounds = torch.cat([torch.tensor([0]), (ep[1:] != ep[:-1]).nonzero().reshape(-1) + 1, torch.tensor([ep.numel()])])
-    episodes = [states[int(a):int(b)] for a, b in zip(bounds[:-1], bounds[1:])]
+    episodes = [states[int(a) : int(b)] for a, b in zip(bounds[:-1], bounds[1:])]
     return episodes, meta
 
 
@@ -400,7 +507,10 @@ def restage_demos(episodes: list[TensorDict], meta: dict, stage_keys) -> tuple[l
             head = monotone_indicators(prev.get("stage_indicators")[:1, cols])
             prev.set("stage_indicators", torch.cat([head.to(torch.float32), ep.get("stage_indicators")[:-1]], 0))
             if "stage" in prev.keys():
-                prev.set("stage", torch.cat([head.sum(-1, keepdim=True), ep.get("stage")[:-1]], 0).to(prev.get("stage").dtype))
+                prev.set(
+                    "stage",
+                    torch.cat([head.sum(-1, keepdim=True), ep.get("stage")[:-1]], 0).to(prev.get("stage").dtype),
+                )
         out.append(ep)
     shapes = {**meta["shapes"], "stage_indicators": len(stage_keys)}
     return out, {**meta, "stage_keys": stage_keys, "shapes": shapes}
@@ -510,9 +620,16 @@ def _replayable_env_id(env_id: str, recorded_id: str) -> bool:
     return mine is not None and theirs is not None and issubclass(mine, theirs)
 
 
-def load_maniskill_h5(path: str | Path, family: TaskFamily, variant: str = "train", *, num: int | None = None,
-                      variant_overrides: dict | None = None, state_tolerance: float = 1e-4,
-                      progress: bool = True) -> tuple[TensorDict, dict]:
+def load_maniskill_h5(
+    path: str | Path,
+    family: TaskFamily,
+    variant: str = "train",
+    *,
+    num: int | None = None,
+    variant_overrides: dict | None = None,
+    state_tolerance: float = 1e-4,
+    progress: bool = True,
+) -> tuple[TensorDict, dict]:
     """Convert a ManiSkill trajectory file (``X.h5`` + ``X.json``) into demonstrations (states, meta).
 
     Algorithm 1 (line 3) of the DrS paper seeds the top stage buffer with demonstrations; ManiSkill
@@ -551,7 +668,9 @@ def load_maniskill_h5(path: str | Path, family: TaskFamily, variant: str = "trai
     if not h5_path.is_file():
         raise DemoError(f"{h5_path}: no such trajectory file")
     if not json_path.is_file():
-        raise DemoError(f"{h5_path}: its metadata {json_path.name} is missing (ManiSkill writes X.h5 and X.json together)")
+        raise DemoError(
+            f"{h5_path}: its metadata {json_path.name} is missing (ManiSkill writes X.h5 and X.json together)"
+        )
     if family.backend != "maniskill":
         raise DemoError(f"family {family.name!r} is not a ManiSkill family; ManiSkill trajectory files do not apply")
     try:
@@ -559,20 +678,29 @@ def load_maniskill_h5(path: str | Path, family: TaskFamily, variant: str = "trai
         env_info, episodes = info["env_info"], list(info["episodes"])
         recorded_id, recorded_kwargs = env_info["env_id"], dict(env_info.get("env_kwargs") or {})
     except (json.JSONDecodeError, KeyError, TypeError) as exc:
-        raise DemoError(f"{json_path}: not ManiSkill trajectory metadata (needs env_info.env_id and episodes): {exc}") from exc
+        raise DemoError(
+            f"{json_path}: not ManiSkill trajectory metadata (needs env_info.env_id and episodes): {exc}"
+        ) from exc
     kwargs = dict(family.variant_kwargs(variant, variant_overrides))
     env_id = kwargs.pop("env_id", family.env_id)  # a variant may name its own env
     kwargs.pop("control_mode", None)  # the recorded actions dictate the controller
     if not _replayable_env_id(env_id, recorded_id):
-        raise DemoError(f"{h5_path} was recorded in {recorded_id!r}, but family {family.name!r} ({variant}) runs "
-                        f"{env_id!r}; convert it for a family whose env is {recorded_id!r}")
+        raise DemoError(
+            f"{h5_path} was recorded in {recorded_id!r}, but family {family.name!r} ({variant}) runs "
+            f"{env_id!r}; convert it for a family whose env is {recorded_id!r}"
+        )
     clash = _recorded_variant_check(family, kwargs, recorded_kwargs)
     if clash:
-        raise DemoError(f"{h5_path} was recorded with " + ", ".join(clash) + f"; pick the matching variant of "
-                        f"{family.name!r} ({sorted(family.variants)}) or set it with variant overrides")
+        raise DemoError(
+            f"{h5_path} was recorded with " + ", ".join(clash) + f"; pick the matching variant of "
+            f"{family.name!r} ({sorted(family.variants)}) or set it with variant overrides"
+        )
     unverified = sorted(k for k in kwargs if k not in recorded_kwargs)
     if unverified and progress:
-        print(f"  note: the recording does not state {unverified}; assuming variant {variant!r} ({kwargs})", file=sys.stderr)
+        print(
+            f"  note: the recording does not state {unverified}; assuming variant {variant!r} ({kwargs})",
+            file=sys.stderr,
+        )
     if not episodes:
         raise DemoError(f"{json_path} lists no episodes")
     ensure_env_ready(env_id, kwargs)
@@ -584,12 +712,22 @@ def load_maniskill_h5(path: str | Path, family: TaskFamily, variant: str = "trai
         if control_mode not in envs:
             try:
                 envs[control_mode] = gym.make(
-                    env_id, obs_mode="state", control_mode=control_mode, num_envs=1, sim_backend="physx_cpu",
-                    render_mode=None, reward_mode="sparse", max_episode_steps=longest, **kwargs)
+                    env_id,
+                    obs_mode="state",
+                    control_mode=control_mode,
+                    num_envs=1,
+                    sim_backend="physx_cpu",
+                    render_mode=None,
+                    reward_mode="sparse",
+                    max_episode_steps=longest,
+                    **kwargs,
+                )
             except Exception as exc:  # ManiSkill asserts on an unknown control mode
-                raise DemoError(f"{h5_path}: its episodes use control mode {control_mode!r}, which {env_id} "
-                                f"cannot build ({exc.__class__.__name__}: {exc}); convert them with ManiSkill's "
-                                "replay_trajectory --target-control-mode to a mode the robot has") from exc
+                raise DemoError(
+                    f"{h5_path}: its episodes use control mode {control_mode!r}, which {env_id} "
+                    f"cannot build ({exc.__class__.__name__}: {exc}); convert them with ManiSkill's "
+                    "replay_trajectory --target-control-mode to a mode the robot has"
+                ) from exc
         return envs[control_mode]
 
     labeller = StageIndicator(family.stage_keys)
@@ -625,7 +763,8 @@ def load_maniskill_h5(path: str | Path, family: TaskFamily, variant: str = "trai
                     if not theirs <= mine:
                         raise DemoError(
                             f"{h5_path}: the recorded states of episode {eid} name entities that {env_id} "
-                            f"with {kwargs} does not have: {sorted(theirs - mine)} (the env has {sorted(mine)})")
+                            f"with {kwargs} does not have: {sorted(theirs - mine)} (the env has {sorted(mine)})"
+                        )
                 try:
                     if states is not None:  # the reset normally reproduces it; setting it would drop contact caches
                         first = _index_state(states, 0)
@@ -635,8 +774,10 @@ def load_maniskill_h5(path: str | Path, family: TaskFamily, variant: str = "trai
                             base.set_state_dict(first)
                             corrections += 1
                 except Exception as exc:
-                    raise DemoError(f"{h5_path}: the recorded states of episode {eid} do not fit {env_id} with "
-                                    f"{kwargs} ({exc.__class__.__name__}: {exc})") from exc
+                    raise DemoError(
+                        f"{h5_path}: the recorded states of episode {eid} do not fit {env_id} with "
+                        f"{kwargs} ({exc.__class__.__name__}: {exc})"
+                    ) from exc
                 rows = []
                 rec_success = group["success"][()].reshape(-1) if "success" in group else None
                 for t, a in enumerate(actions):
@@ -676,7 +817,12 @@ def load_maniskill_h5(path: str | Path, family: TaskFamily, variant: str = "trai
                 seeds.append(None if seed is None else int(seed))
                 ids.append(eid)
                 if progress:
-                    print(f"\r  {len(out)} demos from {h5_path.name} ({time.time() - t0:.0f}s)", end="", file=sys.stderr, flush=True)
+                    print(
+                        f"\r  {len(out)} demos from {h5_path.name} ({time.time() - t0:.0f}s)",
+                        end="",
+                        file=sys.stderr,
+                        flush=True,
+                    )
     except OSError as exc:
         raise DemoError(f"{h5_path}: cannot be read as HDF5 ({exc})") from exc
     finally:
@@ -688,15 +834,30 @@ def load_maniskill_h5(path: str | Path, family: TaskFamily, variant: str = "trai
         raise DemoError(f"{h5_path}: none of its {len(episodes)} episodes reaches success in {family.name}/{variant}")
     data = torch.cat(out, 0)
     meta = {
-        "format": DEMO_FORMAT, "version": DEMO_VERSION, "family": family.name, "env_id": env_id,
-        "variant": variant, "variant_kwargs": kwargs, "stage_keys": list(family.stage_keys),
+        "format": DEMO_FORMAT,
+        "version": DEMO_VERSION,
+        "family": family.name,
+        "env_id": env_id,
+        "variant": variant,
+        "variant_kwargs": kwargs,
+        "stage_keys": list(family.stage_keys),
         "shapes": {k: int(data[k].shape[-1]) for k in ("observation", "stage_indicators", task_key) if k},
-        "episodes": len(out), "lengths": lengths, "seeds": seeds, "solver": f"maniskill-h5:{h5_path.name}",
+        "episodes": len(out),
+        "lengths": lengths,
+        "seeds": seeds,
+        "solver": f"maniskill-h5:{h5_path.name}",
         "replay": {
-            "source": str(h5_path), "recorded_env_id": recorded_id, "source_type": info.get("source_type"),
-            "episode_ids": ids, "skipped_unsuccessful": skipped, "unverified_variant_keys": unverified,
-            "state_tolerance": state_tolerance, "state_corrections": corrections, "max_state_error": max_err,
-            "max_recorded_obs_error": obs_err, "success_label_mismatches": success_mismatch,
+            "source": str(h5_path),
+            "recorded_env_id": recorded_id,
+            "source_type": info.get("source_type"),
+            "episode_ids": ids,
+            "skipped_unsuccessful": skipped,
+            "unverified_variant_keys": unverified,
+            "state_tolerance": state_tolerance,
+            "state_corrections": corrections,
+            "max_state_error": max_err,
+            "max_recorded_obs_error": obs_err,
+            "success_label_mismatches": success_mismatch,
         },
     }
     return data, meta
@@ -704,32 +865,66 @@ def load_maniskill_h5(path: str | Path, family: TaskFamily, variant: str = "trai
 
 @console_script("drs-demos")
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="drs-demos", description="generate demonstrations with ManiSkill's motion planners, "
-                                "record a trained policy's successful episodes (--from-policy), "
-                                "or convert a ManiSkill trajectory file (--from-h5)")
+    p = argparse.ArgumentParser(
+        prog="drs-demos",
+        description="generate demonstrations with ManiSkill's motion planners, "
+        "record a trained policy's successful episodes (--from-policy), "
+        "or convert a ManiSkill trajectory file (--from-h5)",
+    )
     p.add_argument("--family", default="pick_cube")
-    p.add_argument("--variant", default=None, help="variant name, or train/test (default: train; with --from-policy, "
-                   "the split the run trained on)")
+    p.add_argument(
+        "--variant",
+        default=None,
+        help="variant name, or train/test (default: train; with --from-policy, the split the run trained on)",
+    )
     p.add_argument("--num", type=int, default=None, help="default: 100 recorded; all successful ones of --from-h5")
-    p.add_argument("--from-h5", type=Path, default=None, metavar="PATH.h5",
-                   help="convert ManiSkill's trajectory file PATH.h5 (+ PATH.json) by replaying it in the family's env")
-    p.add_argument("--from-policy", default=None, metavar="RUN_DIR",
-                   help="roll out a drs-learn/drs-reuse run's policy (RUN_DIR or its policy.pt) and keep its successful "
-                        "episodes, as the paper's demonstrations (any family; the family comes from the checkpoint)")
+    p.add_argument(
+        "--from-h5",
+        type=Path,
+        default=None,
+        metavar="PATH.h5",
+        help="convert ManiSkill's trajectory file PATH.h5 (+ PATH.json) by replaying it in the family's env",
+    )
+    p.add_argument(
+        "--from-policy",
+        default=None,
+        metavar="RUN_DIR",
+        help="roll out a drs-learn/drs-reuse run's policy (RUN_DIR or its policy.pt) and keep its successful "
+        "episodes, as the paper's demonstrations (any family; the family comes from the checkpoint)",
+    )
     p.add_argument("--stochastic", action="store_true", help="--from-policy: sample actions instead of the mean action")
-    p.add_argument("--max-episodes", type=int, default=None, help="--from-policy: give up after this many (default 20 x --num)")
-    p.add_argument("--override", action="append", default=[], metavar="KEY=VALUE",
-                   help="a variant parameter for every recorded episode, e.g. placed_thresh=0.05 (the placed-threshold "
-                   "ablations) or max_steps=150 (repeatable; not with --from-h5)")
-    p.add_argument("--control-mode", default=None, help="solver demonstrations: replay them in this controller "
-                   "(e.g. pd_ee_delta_pos, the agent's; default: the family's) with ManiSkill's converter; "
-                   "pd_joint_pos keeps the planner's own")
-    p.add_argument("--task-observation", action="store_true", help="also record the env's robot-agnostic task state "
-                   "(key task_observation), for rewards learned with env.task_observation=true "
-                   "reward.in_keys=[task_observation,stage_indicators]")
+    p.add_argument(
+        "--max-episodes", type=int, default=None, help="--from-policy: give up after this many (default 20 x --num)"
+    )
+    p.add_argument(
+        "--override",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a variant parameter for every recorded episode, e.g. placed_thresh=0.05 (the placed-threshold "
+        "ablations) or max_steps=150 (repeatable; not with --from-h5)",
+    )
+    p.add_argument(
+        "--control-mode",
+        default=None,
+        help="solver demonstrations: replay them in this controller "
+        "(e.g. pd_ee_delta_pos, the agent's; default: the family's) with ManiSkill's converter; "
+        "pd_joint_pos keeps the planner's own",
+    )
+    p.add_argument(
+        "--task-observation",
+        action="store_true",
+        help="also record the env's robot-agnostic task state "
+        "(key task_observation), for rewards learned with env.task_observation=true "
+        "reward.in_keys=[task_observation,stage_indicators]",
+    )
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", type=Path, default=None, help="default: demos/<family>-<variant>.demos "
-                   "(-policy.demos with --from-policy)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="default: demos/<family>-<variant>.demos (-policy.demos with --from-policy)",
+    )
     a = p.parse_args(argv)
     if a.num is not None and a.num < 1:
         p.error("--num must be >= 1")
@@ -749,17 +944,30 @@ def main(argv: list[str] | None = None) -> int:
         if a.out is not None:
             check_demos_out(a.out)  # now, not after minutes of recording
         if a.from_policy is not None:  # a bad checkpoint raises PolicyCheckpointError, a ValueError
-            states, meta = record_policy_demos(a.from_policy, a.variant, a.num or 100, seed=a.seed,
-                                               variant_overrides=overrides, deterministic=not a.stochastic,
-                                               max_episodes=a.max_episodes, task_observation=a.task_observation)
+            states, meta = record_policy_demos(
+                a.from_policy,
+                a.variant,
+                a.num or 100,
+                seed=a.seed,
+                variant_overrides=overrides,
+                deterministic=not a.stochastic,
+                max_episodes=a.max_episodes,
+                task_observation=a.task_observation,
+            )
             fam = get_family(meta["family"])
         else:
             fam = with_task_observation(get_family(a.family), a.task_observation)
             if a.from_h5 is not None:
                 states, meta = load_maniskill_h5(a.from_h5, fam, a.variant or "train", num=a.num)
             else:
-                states, meta = record_demos(fam, a.variant or "train", a.num or 100, seed=a.seed,
-                                            variant_overrides=overrides or None, control_mode=a.control_mode or fam.control_mode or "pd_joint_pos")
+                states, meta = record_demos(
+                    fam,
+                    a.variant or "train",
+                    a.num or 100,
+                    seed=a.seed,
+                    variant_overrides=overrides or None,
+                    control_mode=a.control_mode or fam.control_mode or "pd_joint_pos",
+                )
         out = a.out or Path("demos") / f"{fam.name}-{meta['variant']}{'-policy' if a.from_policy else ''}.demos"
     except (KeyError, UserError, RuntimeError, ValueError, TypeError) as exc:
         print(f"drs-demos: error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)

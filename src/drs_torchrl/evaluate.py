@@ -11,6 +11,7 @@ here because episodes end on success, as in the authors' code), the highest stag
 length and the return under the run's own reward (its learned reward for a DrS run). Prints a table
 and writes ``eval_<split>.json`` into the run directory (or ``--out``).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -46,14 +47,28 @@ def start_fingerprint(start) -> str:
     """12 hex digits naming an episode's start state, so that two reports can show they met the same episodes."""
     import hashlib
 
-    obs = torch.cat([start.get(k).detach().float().reshape(-1).cpu() for k in sorted(start.keys(True, True), key=str)
-                     if k not in ("done", "terminated", "truncated") and start.get(k).dtype.is_floating_point])
+    obs = torch.cat(
+        [
+            start.get(k).detach().float().reshape(-1).cpu()
+            for k in sorted(start.keys(True, True), key=str)
+            if k not in ("done", "terminated", "truncated") and start.get(k).dtype.is_floating_point
+        ]
+    )
     return hashlib.sha1(obs.numpy().round(5).tobytes()).hexdigest()[:12]
 
 
-def evaluate_run(run_dir: str | Path, *, episodes: int = 10, split: str | None = None, overrides: dict | None = None,
-                 deterministic: bool = True, seed: int = 12345, video_dir: str | Path | None = None,
-                 keep_episodes: bool = False, episode_seed: int | None = None) -> dict:
+def evaluate_run(
+    run_dir: str | Path,
+    *,
+    episodes: int = 10,
+    split: str | None = None,
+    overrides: dict | None = None,
+    deterministic: bool = True,
+    seed: int = 12345,
+    video_dir: str | Path | None = None,
+    keep_episodes: bool = False,
+    episode_seed: int | None = None,
+) -> dict:
     """Roll out the policy of ``run_dir`` for ``episodes`` episodes; returns per-episode rows and means
     (and, with ``keep_episodes``, each episode's stage and reward per step under ``"episodes"``).
 
@@ -92,9 +107,16 @@ def evaluate_run(run_dir: str | Path, *, episodes: int = 10, split: str | None =
     setup = reward_setup(cfg.reward, cfg.phase)
     variant_overrides = {**(OmegaConf.to_container(cfg.env.variant_overrides) or {}), **(overrides or {})}
     env = make_family_env(
-        family, split, seed=seed, variant_overrides=variant_overrides or None, reward_mode=setup.env_reward_mode,
-        semi_sparse_reward=setup.semi_sparse, semi_sparse_offset=setup.semi_sparse_offset,
-        reward_offset=dense_offset(setup, family), control_mode=cfg.env.control_mode, max_episode_steps=cfg.env.max_episode_steps,
+        family,
+        split,
+        seed=seed,
+        variant_overrides=variant_overrides or None,
+        reward_mode=setup.env_reward_mode,
+        semi_sparse_reward=setup.semi_sparse,
+        semi_sparse_offset=setup.semi_sparse_offset,
+        reward_offset=dense_offset(setup, family),
+        control_mode=cfg.env.control_mode,
+        max_episode_steps=cfg.env.max_episode_steps,
         render_mode="rgb_array" if video_dir else None,
     )
     try:
@@ -119,8 +141,9 @@ def evaluate_run(run_dir: str | Path, *, episodes: int = 10, split: str | None =
                 frames.append(env.base_env.render_frame())  # the start state
             with set_exploration_type(mode), torch.no_grad():
                 # the callback runs after every step but the last one
-                ep = env.rollout(100_000, actor, break_when_any_done=True, callback=callback, auto_reset=False,
-                                 tensordict=start)
+                ep = env.rollout(
+                    100_000, actor, break_when_any_done=True, callback=callback, auto_reset=False, tensordict=start
+                )
             if video_dir:
                 frames.append(env.base_env.render_frame())  # the final state
             nxt = ep.get("next")
@@ -131,9 +154,16 @@ def evaluate_run(run_dir: str | Path, *, episodes: int = 10, split: str | None =
                 from drs_torchrl.transforms.classifier_reward import ClassifierReward
 
                 r = reward.reward(ep if isinstance(reward, ClassifierReward) else nxt)
-            row = {"episode": i, **({"seed": episode_seed + i} if episode_seed is not None else {}),
-                   "start": start_fingerprint(start), "success_once": bool(success.any()), "success_at_end": bool(success[-1]),
-                   "stage": int(nxt.get("stage").max()), "length": int(ep.shape[-1]), "return": float(r.sum())}
+            row = {
+                "episode": i,
+                **({"seed": episode_seed + i} if episode_seed is not None else {}),
+                "start": start_fingerprint(start),
+                "success_once": bool(success.any()),
+                "success_at_end": bool(success[-1]),
+                "stage": int(nxt.get("stage").max()),
+                "length": int(ep.shape[-1]),
+                "return": float(r.sum()),
+            }
             if video_dir and frames:
                 import imageio
 
@@ -147,8 +177,14 @@ def evaluate_run(run_dir: str | Path, *, episodes: int = 10, split: str | None =
         env.close()
     n = family.num_stages
     summary = {
-        "run_dir": str(run_dir), "family": family.name, "split": split, "overrides": overrides or {},
-        "episodes": episodes, "episode_seed": episode_seed, "deterministic": deterministic, "policy_frames": meta.get("frames"),
+        "run_dir": str(run_dir),
+        "family": family.name,
+        "split": split,
+        "overrides": overrides or {},
+        "episodes": episodes,
+        "episode_seed": episode_seed,
+        "deterministic": deterministic,
+        "policy_frames": meta.get("frames"),
         "success_once": float(np.mean([r["success_once"] for r in rows])),
         "success_at_end": float(np.mean([r["success_at_end"] for r in rows])),
         "return": float(np.mean([r["return"] for r in rows])),
@@ -168,11 +204,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("run_dir", help="a drs-learn / drs-reuse run directory (or its checkpoints/policy.pt)")
     p.add_argument("--episodes", type=int, default=10)
     p.add_argument("--split", default=None, help="train | test | a variant name (default: the run's split)")
-    p.add_argument("--override", action="append", default=[], metavar="K=V", help="a variant parameter, e.g. cube_half_size=0.016")
+    p.add_argument(
+        "--override", action="append", default=[], metavar="K=V", help="a variant parameter, e.g. cube_half_size=0.016"
+    )
     p.add_argument("--stochastic", action="store_true", help="sample actions instead of the deterministic policy")
     p.add_argument("--seed", type=int, default=12345, help="the env's seed (its first reset)")
-    p.add_argument("--episode-seed", type=int, default=None, metavar="S",
-                   help="reset episode i with seed S+i: the same starts in every call and every run (as eval.episode_seed)")
+    p.add_argument(
+        "--episode-seed",
+        type=int,
+        default=None,
+        metavar="S",
+        help="reset episode i with seed S+i: the same starts in every call and every run (as eval.episode_seed)",
+    )
     p.add_argument("--video", metavar="DIR", help="record each episode to DIR/*.mp4")
     p.add_argument("--out", help="where to write the JSON report (default RUN_DIR/eval_<split>.json)")
     a = p.parse_args(argv)
@@ -189,9 +232,16 @@ def main(argv: list[str] | None = None) -> int:
             if not sep:
                 raise EvalError(f"--override takes K=V, got {o!r}")
             overrides[k] = yaml.safe_load(v)
-        res = evaluate_run(a.run_dir, episodes=a.episodes, split=a.split, overrides=overrides,
-                           deterministic=not a.stochastic, seed=a.seed, video_dir=a.video,
-                           episode_seed=a.episode_seed)
+        res = evaluate_run(
+            a.run_dir,
+            episodes=a.episodes,
+            split=a.split,
+            overrides=overrides,
+            deterministic=not a.stochastic,
+            seed=a.seed,
+            video_dir=a.video,
+            episode_seed=a.episode_seed,
+        )
     except (EvalError, KeyError, ValueError, FileNotFoundError) as exc:
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
         print(f"drs-eval: error: {msg}", file=sys.stderr)
@@ -199,10 +249,14 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(a.out) if a.out else Path(res["run_dir"]) / f"eval_{res['split']}.json"
     out.write_text(json.dumps(res, indent=2))
     reach = "  ".join(f"stage>={k} {res[f'reach_stage_{k}']:.2f}" for k in range(1, 99) if f"reach_stage_{k}" in res)
-    print(f"drs-eval: {res['family']} {res['split']}, {res['episodes']} {'deterministic' if res['deterministic'] else 'stochastic'} "
-          f"episodes of the policy at {res['policy_frames']} env steps")
-    print(f"  success_once {res['success_once']:.2f}  success_at_end {res['success_at_end']:.2f}  {reach}  "
-          f"return {res['return']:.2f}  length {res['length']:.1f}")
+    print(
+        f"drs-eval: {res['family']} {res['split']}, {res['episodes']} {'deterministic' if res['deterministic'] else 'stochastic'} "
+        f"episodes of the policy at {res['policy_frames']} env steps"
+    )
+    print(
+        f"  success_once {res['success_once']:.2f}  success_at_end {res['success_at_end']:.2f}  {reach}  "
+        f"return {res['return']:.2f}  length {res['length']:.1f}"
+    )
     if a.video:
         print(f"  videos in {a.video}")
     print(f"  report: {out}")

@@ -5,6 +5,7 @@
 * :func:`plot_reward_map`: the paper's reward figure (five values per cell).
 * :func:`report`: curves, CSV and table of a folder of runs.
 """
+
 from __future__ import annotations
 
 import csv
@@ -18,7 +19,17 @@ import torch
 from omegaconf import ListConfig, OmegaConf
 
 from drs_torchrl.errors import UserError
-from drs_torchrl.envs.maze import ACTIONS, GATES, MOVES, OBS_DIMS, SIZE, ThreeRoomMaze, free_cells, make_grid, observation
+from drs_torchrl.envs.maze import (
+    ACTIONS,
+    GATES,
+    MOVES,
+    OBS_DIMS,
+    SIZE,
+    ThreeRoomMaze,
+    free_cells,
+    make_grid,
+    observation,
+)
 from drs_torchrl.transforms import DrSReward
 
 
@@ -40,8 +51,9 @@ def reward_coords(reward: DrSReward) -> str:
     raise MazeConfigError(f"a maze reward reads observations of size {sorted(OBS_DIMS.values())}, this one {dim}")
 
 
-def all_state_actions(map_name: str, goal: tuple[int, int], coords: str = "onehot",
-                      next_state: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+def all_state_actions(
+    map_name: str, goal: tuple[int, int], coords: str = "onehot", next_state: bool = False
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Every free cell of a map (``(n, 2)``) and the features ``(n, 5, obs + 5)`` of each of its
     (state, action) pairs for a given goal cell; with ``next_state``, the observation ``(n, 5, obs)``
     of the cell each action leads to (walls block)."""
@@ -60,7 +72,9 @@ def all_state_actions(map_name: str, goal: tuple[int, int], coords: str = "oneho
 def dense_reward_table(reward: DrSReward, map_name: str, goal: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
     """``R(s, a)`` of every free cell and action at stage 0 (the learned term), ``(n, 5)``."""
     cells, feats = all_state_actions(map_name, goal, reward_coords(reward), reads_next_state(reward))
-    net = reward.discriminators if isinstance(reward, DrSReward) else reward.classifier  # DrS, or a baseline's classifier
+    net = (
+        reward.discriminators if isinstance(reward, DrSReward) else reward.classifier
+    )  # DrS, or a baseline's classifier
     with torch.no_grad():
         logits = net(feats)
         r = reward.combine(logits, torch.zeros(*logits.shape[:-1], 1, dtype=torch.long)).squeeze(-1)
@@ -105,15 +119,19 @@ def reward_diagnostics(reward: DrSReward, map_name: str, max_steps: int) -> dict
         tgt = pos + MOVES[tables[gidx, pos[..., 0], pos[..., 1]]]
         pos = torch.where(grid[tgt[..., 0], tgt[..., 1]].unsqueeze(-1), pos, tgt)
         done |= (pos == goals.unsqueeze(1)).all(-1)
-    return {"optimal_action_rate": n_opt / max(n_all, 1), "always_up_rate": n_up / max(n_all, 1),
-            "greedy_success": float(done.float().mean())}
+    return {
+        "optimal_action_rate": n_opt / max(n_all, 1),
+        "always_up_rate": n_up / max(n_all, 1),
+        "greedy_success": float(done.float().mean()),
+    }
 
 
 @functools.lru_cache(maxsize=None)
 def always_up_rate(map_name: str) -> float:
     """:func:`reward_diagnostics`'s ``always_up_rate`` of a map (the reference a preference-free reward scores)."""
-    flat = DrSReward(1, ["observation"], {"observation": OBS_DIMS["patch"]}, formula="rescaled",
-                     metadata={"reward_on": "next_state"})  # untrained: the same value for every action
+    flat = DrSReward(
+        1, ["observation"], {"observation": OBS_DIMS["patch"]}, formula="rescaled", metadata={"reward_on": "next_state"}
+    )  # untrained: the same value for every action
     return reward_diagnostics(flat, map_name, 1)["always_up_rate"]
 
 
@@ -152,8 +170,10 @@ def plot_reward_map(reward: DrSReward, path: str | os.PathLike, goal: tuple[int,
         ax.set_xticks([])
         ax.set_yticks([])
     fig.colorbar(im, ax=axes[0].tolist(), shrink=0.9, label="R(s, a) at stage 0")
-    fig.suptitle("Learned reward R(s, a) per cell (lighter = higher): up / down / left / right on that side of the cell,\n"
-                 "stay in the middle; red box = goal")
+    fig.suptitle(
+        "Learned reward R(s, a) per cell (lighter = higher): up / down / left / right on that side of the cell,\n"
+        "stay in the middle; red box = goal"
+    )
     path = Path(path)
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -205,15 +225,28 @@ def report(root, out: str | os.PathLike) -> dict:
         w.writerow(["phase", "map", "reward", "seed", "frames", "eval_success", "eval_length", "train_success"])
         for summ, rows, _ in runs:
             for r in rows:
-                w.writerow([summ["phase"], summ["map"], reward_label(summ), summ["seed"], r["frames"], r["eval_success"], r["eval_length"], r["train_success"]])
+                w.writerow(
+                    [
+                        summ["phase"],
+                        summ["map"],
+                        reward_label(summ),
+                        summ["seed"],
+                        r["frames"],
+                        r["eval_success"],
+                        r["eval_length"],
+                        r["train_success"],
+                    ]
+                )
     groups: dict[tuple[str, str], list] = {}
     for summ, rows, d in runs:
         groups.setdefault((summ["phase"], summ["map"], reward_label(summ)), []).append((summ, rows, d))
     many_maps = {ph: len({m for p, m, _ in groups if p == ph}) > 1 for ph, _, _ in groups}
     panels = [("learn", "phase 1: DrS reward learning (train map)"), ("reuse", "phase 2: fresh DQN on the test map")]
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
-    table = ["| phase | map | reward | seeds | env steps | eval success at the end (per seed) | mean +- std | mean over the last 3 evals | wall time per run (s) |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    table = [
+        "| phase | map | reward | seeds | env steps | eval success at the end (per seed) | mean +- std | mean over the last 3 evals | wall time per run (s) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for ax, (phase, title) in zip(axes, panels):
         for (ph, map_name, rname), members in sorted(groups.items()):
             if ph != phase:
@@ -227,9 +260,11 @@ def report(root, out: str | os.PathLike) -> dict:
             ax.fill_between(frames[:n], mean - std, mean + std, alpha=0.25)
             finals = [m[0]["final_eval_success"] for m in members]
             last3 = [m[0]["mean_eval_success_last3"] for m in members]
-            table.append(f"| {phase} | {members[0][0]['map']} | {rname} | {', '.join(str(m[0]['seed']) for m in members)} | "
-                         f"{members[0][0]['frames']} | {', '.join(f'{x:.2f}' for x in finals)} | {np.mean(finals):.2f} +- {np.std(finals):.2f} | "
-                         f"{np.mean(last3):.2f} | {np.mean([m[0]['wall_time_s'] for m in members]):.0f} |")
+            table.append(
+                f"| {phase} | {members[0][0]['map']} | {rname} | {', '.join(str(m[0]['seed']) for m in members)} | "
+                f"{members[0][0]['frames']} | {', '.join(f'{x:.2f}' for x in finals)} | {np.mean(finals):.2f} +- {np.std(finals):.2f} | "
+                f"{np.mean(last3):.2f} | {np.mean([m[0]['wall_time_s'] for m in members]):.0f} |"
+            )
         ax.set_title(title if not many_maps.get(phase) else title.split(" on the ")[0] + " (map in the legend)")
         ax.set_xlabel("env steps")
         ax.set_ylabel("greedy eval success rate")
@@ -240,12 +275,17 @@ def report(root, out: str | os.PathLike) -> dict:
     fig.tight_layout()
     fig.savefig(out / "curves.png", dpi=110)
     plt.close(fig)
-    diag = ["", "| learned reward (seed) | map | argmax_a R(s,a) is a shortest-path action | same for always moving up (reference) | greedy on R reaches the goal |",
-            "|---|---|---|---|---|"]
+    diag = [
+        "",
+        "| learned reward (seed) | map | argmax_a R(s,a) is a shortest-path action | same for always moving up (reference) | greedy on R reaches the goal |",
+        "|---|---|---|---|---|",
+    ]
     for summ, _, _ in runs:
         if summ["phase"] == "learn" and "reward_diagnostics" in summ:
             for m, v in summ["reward_diagnostics"].items():
                 up = f"{v.get('always_up_rate', always_up_rate(m)):.2f}"  # runs written before the field existed: computed
-                diag.append(f"| {reward_label(summ)} {summ['seed']} | {m} | {v['optimal_action_rate']:.2f} | {up} | {v['greedy_success']:.2f} |")
+                diag.append(
+                    f"| {reward_label(summ)} {summ['seed']} | {m} | {v['optimal_action_rate']:.2f} | {up} | {v['greedy_success']:.2f} |"
+                )
     (out / "table.md").write_text("\n".join(table + diag) + "\n")
     return {"runs": len(runs), "out": str(out)}

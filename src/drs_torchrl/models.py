@@ -1,4 +1,5 @@
 """Actor and critics of SAC (Appendix E: 3 x 256 MLPs), built from TorchRL modules."""
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -24,7 +25,9 @@ class PolicyCheckpointError(UserError, ValueError):
 def _in_features(observation_spec, keys: Sequence[str]) -> int:
     missing = [k for k in keys if k not in observation_spec.keys(True, True)]
     if missing:
-        raise KeyError(f"policy inputs {missing} are not in the observation spec ({list(observation_spec.keys(True, True))})")
+        raise KeyError(
+            f"policy inputs {missing} are not in the observation spec ({list(observation_spec.keys(True, True))})"
+        )
     return sum(int(observation_spec[k].shape[-1]) for k in keys)
 
 
@@ -88,8 +91,10 @@ def resolve_policy_path(path: str | Path) -> Path:
     for cand in (path, path / "policy.pt", path / "checkpoints" / "policy.pt"):
         if cand.is_file():
             return cand
-    raise PolicyCheckpointError(f"{path}: no policy checkpoint there (expected a drs-learn/drs-reuse run directory "
-                                "or its checkpoints/policy.pt)")
+    raise PolicyCheckpointError(
+        f"{path}: no policy checkpoint there (expected a drs-learn/drs-reuse run directory "
+        "or its checkpoints/policy.pt)"
+    )
 
 
 def read_policy_checkpoint(path: str | Path) -> tuple[Path, dict]:
@@ -98,15 +103,20 @@ def read_policy_checkpoint(path: str | Path) -> tuple[Path, dict]:
     try:
         ck = torch.load(file, map_location="cpu", weights_only=False)
     except Exception as exc:
-        raise PolicyCheckpointError(f"{file}: cannot be read as a torch file ({exc.__class__.__name__}: {exc})") from exc
+        raise PolicyCheckpointError(
+            f"{file}: cannot be read as a torch file ({exc.__class__.__name__}: {exc})"
+        ) from exc
     if not isinstance(ck, dict) or ck.get("format") != POLICY_FORMAT:
         got = ck.get("format") if isinstance(ck, dict) else type(ck).__name__
-        raise PolicyCheckpointError(f"{file} is not a drs-torchrl policy checkpoint (format {got!r}); "
-                                    "pass a run's checkpoints/policy.pt")
+        raise PolicyCheckpointError(
+            f"{file} is not a drs-torchrl policy checkpoint (format {got!r}); pass a run's checkpoints/policy.pt"
+        )
     return file, ck
 
 
-def load_policy(path: str | Path, observation_spec, action_spec, *, family: str | None = None) -> tuple[ProbabilisticActor, dict]:
+def load_policy(
+    path: str | Path, observation_spec, action_spec, *, family: str | None = None
+) -> tuple[ProbabilisticActor, dict]:
     """The SAC actor of a ``drs-learn`` / ``drs-reuse`` policy checkpoint, built for the given specs.
 
     Returns ``(actor, checkpoint metadata)``. Raises :class:`PolicyCheckpointError` (saying what
@@ -125,7 +135,9 @@ def load_policy(path: str | Path, observation_spec, action_spec, *, family: str 
         actor.load_state_dict(ck["actor"])
     except RuntimeError as exc:  # size mismatches
         sizes = {k: int(observation_spec[k].shape[-1]) for k in keys}
-        raise PolicyCheckpointError(f"{file} does not fit this env (inputs {sizes}, action {int(action_spec.shape[-1])}): "
-                                    f"{str(exc).splitlines()[0]}") from exc
+        raise PolicyCheckpointError(
+            f"{file} does not fit this env (inputs {sizes}, action {int(action_spec.shape[-1])}): "
+            f"{str(exc).splitlines()[0]}"
+        ) from exc
     meta = {k: v for k, v in ck.items() if k not in ("actor", "qvalue_params")}
     return actor, meta

@@ -6,6 +6,7 @@ SAC batch; UTD 0.5, training every 64 steps), written the way a researcher would
 gymnasium env, numpy buffers, sequential collect-then-train, no TensorDict. ``drs-bench`` runs it
 beside the pipeline so the two are compared in one run on one machine.
 """
+
 from __future__ import annotations
 
 import time
@@ -24,10 +25,21 @@ def _mlp(i, o, h=(256, 256, 256)):
     return nn.Sequential(*layers, nn.Linear(d, o))
 
 
-def run_plain_drs(env_id: str, env_kwargs: dict, stage_keys, batch_size: int, timed_frames: int,
-                  learning_starts: int = 4000, train_every: int = 64, utd: float = 0.5, gamma: float = 0.8,
-                  tau: float = 0.005, seed: int = 0, disc_updates: float = 1,
-                  disc_batch_size: int | None = None) -> dict:
+def run_plain_drs(
+    env_id: str,
+    env_kwargs: dict,
+    stage_keys,
+    batch_size: int,
+    timed_frames: int,
+    learning_starts: int = 4000,
+    train_every: int = 64,
+    utd: float = 0.5,
+    gamma: float = 0.8,
+    tau: float = 0.005,
+    seed: int = 0,
+    disc_updates: float = 1,
+    disc_batch_size: int | None = None,
+) -> dict:
     """Run the loop for ``learning_starts + timed_frames`` steps; returns env steps/s and updates/s
     over the timed (learning) part. ``disc_updates``: discriminator steps per SAC update; ``disc_batch_size``: per side (default: the SAC batch)."""
     import gymnasium as gym
@@ -37,8 +49,16 @@ def run_plain_drs(env_id: str, env_kwargs: dict, stage_keys, batch_size: int, ti
 
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    env = gym.make(env_id, obs_mode="state", control_mode="pd_ee_delta_pos", num_envs=1, sim_backend="physx_cpu",
-                   reward_mode="sparse", render_mode=None, **env_kwargs)
+    env = gym.make(
+        env_id,
+        obs_mode="state",
+        control_mode="pd_ee_delta_pos",
+        num_envs=1,
+        sim_backend="physx_cpu",
+        reward_mode="sparse",
+        render_mode=None,
+        **env_kwargs,
+    )
     N = len(stage_keys)
     db = int(disc_batch_size or batch_size)
     act_dim = env.action_space.shape[-1]
@@ -160,5 +180,11 @@ def run_plain_drs(env_id: str, env_kwargs: dict, stage_keys, batch_size: int, ti
             updates += 1
     dt = time.perf_counter() - t_start
     env.close()
-    return {"batch_size": batch_size, "utd": utd, "disc_updates": disc_updates, "disc_batch_size": db,
-            "env_steps_per_s": (step - s0) / dt, "updates_per_s_overall": (updates - u0) / dt}
+    return {
+        "batch_size": batch_size,
+        "utd": utd,
+        "disc_updates": disc_updates,
+        "disc_batch_size": db,
+        "env_steps_per_s": (step - s0) / dt,
+        "updates_per_s_overall": (updates - u0) / dt,
+    }

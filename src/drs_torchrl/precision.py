@@ -9,6 +9,7 @@ losses are fp32) and the reward the agent is trained on stay fp32.
 CPUs, compute capability >= 8.0 on CUDA) and fp32 elsewhere: on a CPU without those instructions
 oneDNN emulates bf16 and it is several times slower than fp32 (``results/bench/``).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -65,8 +66,10 @@ def resolve_precision(name: str, device: torch.device | str) -> str:
     if name == "auto":
         return "bf16" if native_bf16(device) else "fp32"
     if name == "fp16" and device.type != "cuda":
-        raise PrecisionError("algo.precision=fp16 needs a CUDA device (CPUs have no fp16 matrix units torch uses); "
-                             "use algo.precision=bf16 or fp32")
+        raise PrecisionError(
+            "algo.precision=fp16 needs a CUDA device (CPUs have no fp16 matrix units torch uses); "
+            "use algo.precision=bf16 or fp32"
+        )
     return name
 
 

@@ -21,6 +21,7 @@ velocities; else one group per input key) puts the second policy's values into t
 (and the other way round), and reports the mean ``tanh(D_k)`` after each swap (``feature_swap.md/json``).
 A group whose swap moves the score from one policy's level to the other's is what ``D_k`` reads.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -42,8 +43,9 @@ def spearman(x: np.ndarray, y: np.ndarray) -> float:
     return float(spearmanr(x, y).statistic)
 
 
-def rollout(policy_dir, reward, split: str, episodes: int, seed: int, deterministic: bool,
-            variant_overrides: dict | None = None) -> dict:
+def rollout(
+    policy_dir, reward, split: str, episodes: int, seed: int, deterministic: bool, variant_overrides: dict | None = None
+) -> dict:
     """Per next state of ``episodes`` episodes: stage, tanh(D_k) for every k, dense reward; and the success rate.
     ``variant_overrides`` update the policy run's (e.g. ``placed_thresh``: label the stages as the reward's run did)."""
     from omegaconf import OmegaConf
@@ -57,8 +59,15 @@ def rollout(policy_dir, reward, split: str, episodes: int, seed: int, determinis
     # a reward that reads the task state gets it from the env, whatever the policy's run had
     family = with_task_observation(family_from_config(cfg.env), TASK_OBSERVATION_KEY in reward.reward_in_keys)
     overrides = {**(OmegaConf.to_container(cfg.env.variant_overrides) or {}), **(variant_overrides or {})} or None
-    env = make_family_env(family, split, seed=seed, variant_overrides=overrides, reward_mode="normalized_dense",
-                          control_mode=cfg.env.control_mode, max_episode_steps=cfg.env.max_episode_steps)
+    env = make_family_env(
+        family,
+        split,
+        seed=seed,
+        variant_overrides=overrides,
+        reward_mode="normalized_dense",
+        control_mode=cfg.env.control_mode,
+        max_episode_steps=cfg.env.max_episode_steps,
+    )
     actor, _ = load_policy(policy_dir, env.observation_spec, env.action_spec, family=family.name)
     mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
     cols = {"stage": [], "tanh_d": [], "dense": [], "success": [], "features": []}
@@ -77,9 +86,15 @@ def rollout(policy_dir, reward, split: str, episodes: int, seed: int, determinis
             cols["success"].append(bool(nxt.get("success").any()))
     finally:
         env.close()
-    return {"stage": np.concatenate(cols["stage"]), "tanh_d": np.concatenate(cols["tanh_d"]),
-            "features": torch.cat(cols["features"]), "family": family,
-            "dense": np.concatenate(cols["dense"]), "success_rate": float(np.mean(cols["success"])), "num_stages": reward.num_stages}
+    return {
+        "stage": np.concatenate(cols["stage"]),
+        "tanh_d": np.concatenate(cols["tanh_d"]),
+        "features": torch.cat(cols["features"]),
+        "family": family,
+        "dense": np.concatenate(cols["dense"]),
+        "success_rate": float(np.mean(cols["success"])),
+        "num_stages": reward.num_stages,
+    }
 
 
 def feature_groups(family, reward) -> dict[str, tuple[int, int]]:
@@ -96,7 +111,9 @@ def feature_groups(family, reward) -> dict[str, tuple[int, int]]:
     return groups
 
 
-def feature_swap(score, fa: torch.Tensor, fb: torch.Tensor, groups: dict[str, tuple[int, int]], seed: int = 0) -> list[dict]:
+def feature_swap(
+    score, fa: torch.Tensor, fb: torch.Tensor, groups: dict[str, tuple[int, int]], seed: int = 0
+) -> list[dict]:
     """For each column group: mean ``score`` of ``fa`` with that group taken from random rows of ``fb``, and
     of ``fb`` with it taken from ``fa``. ``score`` maps ``(n, d)`` features to ``(n,)`` values."""
     g = torch.Generator().manual_seed(seed)
@@ -107,9 +124,17 @@ def feature_swap(score, fa: torch.Tensor, fb: torch.Tensor, groups: dict[str, tu
         x, y = fa.clone(), fb.clone()
         x[:, s:e] = fb[ib, s:e]
         y[:, s:e] = fa[ia, s:e]
-        rows.append({"group": name, "columns": [s, e], "a": float(score(x).mean()), "b": float(score(y).mean()),
-                     # how the two sides differ there: the mean Euclidean norm of the group's values
-                     "norm_a": float(fa[:, s:e].norm(dim=-1).mean()), "norm_b": float(fb[:, s:e].norm(dim=-1).mean())})
+        rows.append(
+            {
+                "group": name,
+                "columns": [s, e],
+                "a": float(score(x).mean()),
+                "b": float(score(y).mean()),
+                # how the two sides differ there: the mean Euclidean norm of the group's values
+                "norm_a": float(fa[:, s:e].norm(dim=-1).mean()),
+                "norm_b": float(fb[:, s:e].norm(dim=-1).mean()),
+            }
+        )
     return rows
 
 
@@ -118,30 +143,52 @@ def summarize(data: dict) -> list[dict]:
     for k in range(data["num_stages"]):  # the last stage (success) ends the episode and has no discriminator
         m = data["stage"] == k
         t, d = data["tanh_d"][m, k], data["dense"][m]
-        rows.append({"stage": k, "states": int(m.sum()),
-                     "tanh_d_mean": float(t.mean()) if m.any() else float("nan"),
-                     "tanh_d_min": float(t.min()) if m.any() else float("nan"),
-                     "tanh_d_max": float(t.max()) if m.any() else float("nan"),
-                     "spearman_vs_dense": spearman(t, d)})
+        rows.append(
+            {
+                "stage": k,
+                "states": int(m.sum()),
+                "tanh_d_mean": float(t.mean()) if m.any() else float("nan"),
+                "tanh_d_min": float(t.min()) if m.any() else float("nan"),
+                "tanh_d_max": float(t.max()) if m.any() else float("nan"),
+                "spearman_vs_dense": spearman(t, d),
+            }
+        )
     return rows
 
 
 @console_script("drs-probe")
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="drs-probe", description=__doc__.split("\n\n", 1)[0].replace("``", ""),
-                                epilog=__doc__.split("\n\n", 1)[1].replace("``", ""),
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        prog="drs-probe",
+        description=__doc__.split("\n\n", 1)[0].replace("``", ""),
+        epilog=__doc__.split("\n\n", 1)[1].replace("``", ""),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     p.add_argument("--reward", required=True, help="a DrS reward.pt")
     p.add_argument("--policy", required=True, help="a drs-learn / drs-reuse run directory (or record) with policy.pt")
-    p.add_argument("--splits", nargs="+", default=["train", "test"], help="splits or variant names to roll out on (default: train test)")
+    p.add_argument(
+        "--splits",
+        nargs="+",
+        default=["train", "test"],
+        help="splits or variant names to roll out on (default: train test)",
+    )
     p.add_argument("--episodes", type=int, default=20, help="episodes per split (default 20)")
     p.add_argument("--deterministic", action="store_true", help="the mean action (default: sampled actions)")
     p.add_argument("--seed", type=int, default=0, help="seeds the env and the sampled actions (default 0)")
-    p.add_argument("--swap-with", default=None, metavar="RUN_DIR",
-                   help="a second policy: swap input groups between its stage-k states and --policy's (first split)")
-    p.add_argument("--variant-override", action="append", default=[], metavar="KEY=VALUE",
-                   help="an env variant parameter over the policy run's (repeatable), e.g. placed_thresh=0.05 to label "
-                        "the stages as a reward learned with that threshold does")
+    p.add_argument(
+        "--swap-with",
+        default=None,
+        metavar="RUN_DIR",
+        help="a second policy: swap input groups between its stage-k states and --policy's (first split)",
+    )
+    p.add_argument(
+        "--variant-override",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="an env variant parameter over the policy run's (repeatable), e.g. placed_thresh=0.05 to label "
+        "the stages as a reward learned with that threshold does",
+    )
     p.add_argument("--out", type=Path, required=True, help="folder for probe.json/md/png (and feature_swap.json/md)")
     a = p.parse_args(argv)
     try:  # values typed as YAML reads them, as Hydra overrides are
@@ -160,8 +207,17 @@ def main(argv=None) -> int:
     if not isinstance(reward, DrSReward):
         p.error(f"{a.reward} is not a DrS reward")
     a.out.mkdir(parents=True, exist_ok=True)
-    report, data = {"reward": a.reward, "policy": a.policy, "episodes": a.episodes, "variant_overrides": a.overrides,
-                    "actions": "deterministic" if a.deterministic else "sampled", "splits": {}}, {}
+    report, data = (
+        {
+            "reward": a.reward,
+            "policy": a.policy,
+            "episodes": a.episodes,
+            "variant_overrides": a.overrides,
+            "actions": "deterministic" if a.deterministic else "sampled",
+            "splits": {},
+        },
+        {},
+    )
     for split in a.splits:
         data[split] = rollout(a.policy, reward, split, a.episodes, a.seed, a.deterministic, a.overrides)
         report["splits"][split] = {"success_rate": data[split]["success_rate"], "stages": summarize(data[split])}
@@ -169,14 +225,20 @@ def main(argv=None) -> int:
     (a.out / "probe.json").write_text(json.dumps(report, indent=1))
     if a.swap_with:
         write_feature_swap(a, reward, data[a.splits[0]])
-    lines = [f"Reward `{a.reward}` along {a.episodes} episodes ({report['actions']} actions) of the policy `{a.policy}`"
-             + (f", env variant overrides {a.overrides} (stages labelled with them)." if a.overrides else "."),
-             "Spearman: rank correlation of tanh(D_k(s')) with ManiSkill's normalized dense reward over the stage-k states.", "",
-             "| split | policy success | stage k | states | tanh(D_k) mean [min, max] | Spearman vs dense |", "|---|---|---|---|---|---|"]
+    lines = [
+        f"Reward `{a.reward}` along {a.episodes} episodes ({report['actions']} actions) of the policy `{a.policy}`"
+        + (f", env variant overrides {a.overrides} (stages labelled with them)." if a.overrides else "."),
+        "Spearman: rank correlation of tanh(D_k(s')) with ManiSkill's normalized dense reward over the stage-k states.",
+        "",
+        "| split | policy success | stage k | states | tanh(D_k) mean [min, max] | Spearman vs dense |",
+        "|---|---|---|---|---|---|",
+    ]
     for split, r in report["splits"].items():
         for s in r["stages"]:
-            lines.append(f"| {split} | {r['success_rate']:.2f} | {s['stage']} | {s['states']} | {s['tanh_d_mean']:.2f} "
-                         f"[{s['tanh_d_min']:.2f}, {s['tanh_d_max']:.2f}] | {s['spearman_vs_dense']:.2f} |")
+            lines.append(
+                f"| {split} | {r['success_rate']:.2f} | {s['stage']} | {s['states']} | {s['tanh_d_mean']:.2f} "
+                f"[{s['tanh_d_min']:.2f}, {s['tanh_d_max']:.2f}] | {s['spearman_vs_dense']:.2f} |"
+            )
     (a.out / "probe.md").write_text("\n".join(lines) + "\n")
     import matplotlib
 
@@ -204,9 +266,12 @@ def write_feature_swap(a, reward, first: dict) -> None:
     other = rollout(a.swap_with, reward, split, a.episodes, a.seed, a.deterministic, a.overrides)
     groups = feature_groups(first["family"], reward)
     out = {"reward": a.reward, "a": a.policy, "b": a.swap_with, "split": split, "episodes": a.episodes, "stages": []}
-    lines = [f"Which inputs drive `tanh(D_k)` of `{a.reward}`: stage-k states of A = `{a.policy}` and B = `{a.swap_with}`",
-             f"({a.episodes} episodes each, {split} split, {'deterministic' if a.deterministic else 'sampled'} actions). Each row puts",
-             "one group of B's input columns into A's states (random pairing) and A's into B's; mean tanh(D_k) after the swap.", ""]
+    lines = [
+        f"Which inputs drive `tanh(D_k)` of `{a.reward}`: stage-k states of A = `{a.policy}` and B = `{a.swap_with}`",
+        f"({a.episodes} episodes each, {split} split, {'deterministic' if a.deterministic else 'sampled'} actions). Each row puts",
+        "one group of B's input columns into A's states (random pairing) and A's into B's; mean tanh(D_k) after the swap.",
+        "",
+    ]
     for k in range(reward.num_stages):
         ma, mb = first["stage"] == k, other["stage"] == k
         if ma.sum() < 3 or mb.sum() < 3:
@@ -219,11 +284,17 @@ def write_feature_swap(a, reward, first: dict) -> None:
 
         rows = feature_swap(score, fa, fb, groups, a.seed)
         out["stages"].append({"stage": k, "states_a": int(ma.sum()), "states_b": int(mb.sum()), "rows": rows})
-        lines += [f"**stage {k}** ({int(ma.sum())} states of A, {int(mb.sum())} of B)", "",
-                  "| input group swapped | A's states, mean tanh(D_k) | B's states, mean tanh(D_k) | mean norm of the group, A / B |",
-                  "|---|---|---|---|"]
-        lines += [f"| {r['group']} | {r['a']:.2f} | {r['b']:.2f} | "
-                  + (f"{r['norm_a']:.3g} / {r['norm_b']:.3g} |" if "norm_a" in r else "- |") for r in rows] + [""]
+        lines += [
+            f"**stage {k}** ({int(ma.sum())} states of A, {int(mb.sum())} of B)",
+            "",
+            "| input group swapped | A's states, mean tanh(D_k) | B's states, mean tanh(D_k) | mean norm of the group, A / B |",
+            "|---|---|---|---|",
+        ]
+        lines += [
+            f"| {r['group']} | {r['a']:.2f} | {r['b']:.2f} | "
+            + (f"{r['norm_a']:.3g} / {r['norm_b']:.3g} |" if "norm_a" in r else "- |")
+            for r in rows
+        ] + [""]
     (a.out / "feature_swap.json").write_text(json.dumps(out, indent=1))
     (a.out / "feature_swap.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

@@ -3,6 +3,7 @@
 Studies run from a worktree pinned to a commit (docs: studies); each run's ``summary.json`` records that
 commit, and whether the checkout had uncommitted changes, so a result names the code behind it.
 """
+
 from __future__ import annotations
 
 import functools

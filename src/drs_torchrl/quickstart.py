@@ -16,6 +16,7 @@ unfinished ones start again (a maze run takes minutes and keeps no training stat
 SIGINT/SIGTERM stop the runs and exit 130/143. (``drs-study`` schedules the resumable SAC runs;
 this is its small cousin for a fixed four-run plan with live progress and a summary.)
 """
+
 from __future__ import annotations
 
 import csv
@@ -38,7 +39,12 @@ from drs_torchrl.rundir import LOCK_NAME, lock_run_dir
 from drs_torchrl.trainers.maze import _conf_dir
 
 SUCCESS_BAR = 0.9  # "solved": greedy success at or above this
-LABELS = {"drs": "DrS (frozen, reused)", "sparse": "sparse", "semi_sparse": "semi-sparse", "dense": "human-engineered dense"}
+LABELS = {
+    "drs": "DrS (frozen, reused)",
+    "sparse": "sparse",
+    "semi_sparse": "semi-sparse",
+    "dense": "human-engineered dense",
+}
 
 
 class QuickstartError(UserError, ValueError):
@@ -58,20 +64,31 @@ def plan(cfg: DictConfig, out: Path) -> list[Job]:
     try:
         seed, frames, jobs = int(cfg.seed), int(cfg.total_frames), int(cfg.jobs)
     except (TypeError, ValueError):
-        raise QuickstartError(f"seed, total_frames and jobs must be integers, got seed={cfg.seed!r}, "
-                              f"total_frames={cfg.total_frames!r}, jobs={cfg.jobs!r}") from None
+        raise QuickstartError(
+            f"seed, total_frames and jobs must be integers, got seed={cfg.seed!r}, "
+            f"total_frames={cfg.total_frames!r}, jobs={cfg.jobs!r}"
+        ) from None
     if frames <= 0 or jobs <= 0:
         raise QuickstartError(f"total_frames and jobs must be positive, got {frames} and {jobs}")
     unknown = [b for b in cfg.baselines if b not in cfg.reuse or b == "drs"]
     if unknown:
-        raise QuickstartError(f"unknown baselines {unknown}; choose from {[k for k in cfg.reuse if k != 'drs']}, "
-                              f"e.g. baselines=[sparse,semi_sparse]")
+        raise QuickstartError(
+            f"unknown baselines {unknown}; choose from {[k for k in cfg.reuse if k != 'drs']}, "
+            f"e.g. baselines=[sparse,semi_sparse]"
+        )
     common = [*map(str, cfg.common), f"seed={seed}", f"total_frames={frames}", "verbose=false", *map(str, cfg.extra)]
     learn = Job("learn", "phase 1: DrS learns (train map)", ["phase=learn", *map(str, cfg.learn), *common])
     ckpt = f"reward.checkpoint={out / 'learn' / 'reward.pt'}"
-    drs = Job("reuse-drs", "phase 2: DrS reward (test map)", ["phase=reuse", *map(str, cfg.reuse.drs), ckpt, *common], ["learn"])
-    base = [Job(f"reuse-{b}", f"phase 2: {LABELS.get(b, b)} (test map)", ["phase=reuse", *map(str, cfg.reuse[b]), *common])
-            for b in cfg.baselines]
+    drs = Job(
+        "reuse-drs",
+        "phase 2: DrS reward (test map)",
+        ["phase=reuse", *map(str, cfg.reuse.drs), ckpt, *common],
+        ["learn"],
+    )
+    base = [
+        Job(f"reuse-{b}", f"phase 2: {LABELS.get(b, b)} (test map)", ["phase=reuse", *map(str, cfg.reuse[b]), *common])
+        for b in cfg.baselines
+    ]
     # phase 1 first, then a baseline beside it; DrS's reuse as soon as phase 1 is done
     return [learn, *base[:1], drs, *base[1:]]
 
@@ -97,11 +114,15 @@ def prepare_out(out: Path, jobs: list[Job], overwrite: bool) -> list[str]:
             try:
                 theirs = json.loads(record.read_text())
             except (OSError, UnicodeDecodeError, ValueError) as exc:
-                raise QuickstartError(f"{record} is damaged ({exc.__class__.__name__}); start {out} afresh with "
-                                      "overwrite=true, or choose another out=DIR") from None
+                raise QuickstartError(
+                    f"{record} is damaged ({exc.__class__.__name__}); start {out} afresh with "
+                    "overwrite=true, or choose another out=DIR"
+                ) from None
             if not isinstance(theirs, dict) or theirs.get("plan") != mine["plan"]:
-                raise QuickstartError(f"{out} holds a quickstart with other settings; continue it with the same "
-                                      f"overrides, choose another out=DIR, or start it afresh with overwrite=true")
+                raise QuickstartError(
+                    f"{out} holds a quickstart with other settings; continue it with the same "
+                    f"overrides, choose another out=DIR, or start it afresh with overwrite=true"
+                )
     out.mkdir(parents=True, exist_ok=True)
     (out / "logs").mkdir(exist_ok=True)
     record.write_text(json.dumps(mine, indent=1))
@@ -124,7 +145,9 @@ class Progress:
     def __init__(self, total: int, bars: bool | None):
         self.total = total
         # a terminal without a size (e.g. under `script`) gets lines: tqdm would draw nothing there
-        self.bars = (sys.stdout.isatty() and shutil.get_terminal_size((0, 0)).columns >= 60) if bars is None else bool(bars)
+        self.bars = (
+            (sys.stdout.isatty() and shutil.get_terminal_size((0, 0)).columns >= 60) if bars is None else bool(bars)
+        )
         self.open: dict[str, object] = {}
         self.seen: dict[str, int] = {}
         self.t0 = time.perf_counter()
@@ -133,10 +156,16 @@ class Progress:
         if self.bars:
             from tqdm import tqdm
 
-            self.open[job.name] = tqdm(total=self.total, desc=f"{job.title:<34}", unit="step", unit_scale=True,
-                                       position=len(self.open), leave=True, file=sys.stdout,
-                                       bar_format="{desc} {percentage:3.0f}%|{bar:16}| {n_fmt}/{total_fmt} "
-                                                  "[{elapsed}<{remaining}{postfix}]")
+            self.open[job.name] = tqdm(
+                total=self.total,
+                desc=f"{job.title:<34}",
+                unit="step",
+                unit_scale=True,
+                position=len(self.open),
+                leave=True,
+                file=sys.stdout,
+                bar_format="{desc} {percentage:3.0f}%|{bar:16}| {n_fmt}/{total_fmt} [{elapsed}<{remaining}{postfix}]",
+            )
         else:
             print(f"[{self._clock()}] {job.title}: started", flush=True)
 
@@ -202,8 +231,10 @@ def run_jobs(jobs: list[Job], out: Path, n_parallel: int, progress: Progress, qu
                     if not ok:
                         log = (out / "logs" / f"{name}.log").read_text(errors="replace").strip().splitlines()
                         tail = "\n    ".join(log[-8:])
-                        raise QuickstartError(f"run {name} failed (exit {proc.returncode}); the end of "
-                                              f"{out / 'logs' / (name + '.log')}:\n    {tail}")
+                        raise QuickstartError(
+                            f"run {name} failed (exit {proc.returncode}); the end of "
+                            f"{out / 'logs' / (name + '.log')}:\n    {tail}"
+                        )
             for job in list(pending):
                 if len(active) >= n_parallel:
                     break
@@ -251,18 +282,28 @@ def summarize(jobs: list[Job], out: Path, wall_s: float | None) -> dict:
     for j in sorted(jobs[1:], key=lambda j: j.name != "reuse-drs"):  # DrS first, then the baselines
         s = json.loads((out / j.name / "summary.json").read_text())
         phase2[j.name.removeprefix("reuse-")] = {
-            "success_last3": s["mean_eval_success_last3"], "final_success": s["final_eval_success"],
-            "first_solved_at": first_solved(out / j.name), "wall_time_s": s["wall_time_s"]}
+            "success_last3": s["mean_eval_success_last3"],
+            "final_success": s["final_eval_success"],
+            "first_solved_at": first_solved(out / j.name),
+            "wall_time_s": s["wall_time_s"],
+        }
     summary = {
-        "family": "three_room_maze", "seed": learn["seed"], "frames_per_run": learn["frames"], "wall_time_s": wall_s,
-        "phase1": {"greedy_success_last3": learn["mean_eval_success_last3"],
-                   "train_success": float(row.get("train_success", "nan")),
-                   "disc_accuracy": float(row.get("disc_accuracy", "nan")),
-                   "disc_updates": learn.get("disc_updates"), "stage_buffer_counts": learn.get("stage_buffer_counts"),
-                   "test_map_best_action_is_shortest_path": diag.get("optimal_action_rate"),
-                   "test_map_always_up_reference": diag.get("always_up_rate"),
-                   "reward_checkpoint": str(out / "learn" / "reward.pt")},
-        "phase2": phase2, "figure": str(out / "quickstart.png"),
+        "family": "three_room_maze",
+        "seed": learn["seed"],
+        "frames_per_run": learn["frames"],
+        "wall_time_s": wall_s,
+        "phase1": {
+            "greedy_success_last3": learn["mean_eval_success_last3"],
+            "train_success": float(row.get("train_success", "nan")),
+            "disc_accuracy": float(row.get("disc_accuracy", "nan")),
+            "disc_updates": learn.get("disc_updates"),
+            "stage_buffer_counts": learn.get("stage_buffer_counts"),
+            "test_map_best_action_is_shortest_path": diag.get("optimal_action_rate"),
+            "test_map_always_up_reference": diag.get("always_up_rate"),
+            "reward_checkpoint": str(out / "learn" / "reward.pt"),
+        },
+        "phase2": phase2,
+        "figure": str(out / "quickstart.png"),
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     (out / "summary.md").write_text(summary_text(summary, out) + "\n")
@@ -273,7 +314,9 @@ def summary_text(s: dict, out: Path) -> str:
     p1, p2 = s["phase1"], s["phase2"]
     lines = []
     if s.get("wall_time_s") is not None:
-        lines.append(f"drs-quickstart: done in {s['wall_time_s'] / 60:.1f} min, seed {s['seed']}, {s['frames_per_run']} env steps per run.")
+        lines.append(
+            f"drs-quickstart: done in {s['wall_time_s'] / 60:.1f} min, seed {s['seed']}, {s['frames_per_run']} env steps per run."
+        )
     lines += [
         "",
         "Phase 1, train map (reward learning):",
@@ -281,20 +324,34 @@ def summary_text(s: dict, out: Path) -> str:
         f"  the discriminator (success vs not) took {p1['disc_updates']} steps and ends at accuracy {p1['disc_accuracy']:.2f};",
     ]
     if p1.get("test_map_best_action_is_shortest_path") is not None:
-        lines.append(f"  on the test map its best action is a shortest-path move in {p1['test_map_best_action_is_shortest_path']:.0%} "
-                     f"of (cell, goal) pairs (always moving up: {p1['test_map_always_up_reference']:.0%}).")
-    lines += ["", "Phase 2, test map (gates swapped), fresh DQN agents; greedy success, mean of the last 3 evaluations:"]
+        lines.append(
+            f"  on the test map its best action is a shortest-path move in {p1['test_map_best_action_is_shortest_path']:.0%} "
+            f"of (cell, goal) pairs (always moving up: {p1['test_map_always_up_reference']:.0%})."
+        )
+    lines += [
+        "",
+        "Phase 2, test map (gates swapped), fresh DQN agents; greedy success, mean of the last 3 evaluations:",
+    ]
     for name, r in p2.items():
-        when = f"first >= {SUCCESS_BAR} at {r['first_solved_at'] // 1000}k steps" if r["first_solved_at"] is not None else f"never >= {SUCCESS_BAR}"
+        when = (
+            f"first >= {SUCCESS_BAR} at {r['first_solved_at'] // 1000}k steps"
+            if r["first_solved_at"] is not None
+            else f"never >= {SUCCESS_BAR}"
+        )
         lines.append(f"  {LABELS.get(name, name):<24} {r['success_last3']:.2f}   ({when})")
     drs = p2["drs"]["success_last3"]
     if "sparse" in p2:
         gap = drs - p2["sparse"]["success_last3"]
-        lines += ["", f"The reused DrS reward {'beat' if gap >= 0.2 else 'did not clearly beat'} sparse, the paper's baseline "
-                      f"({drs:.2f} vs {p2['sparse']['success_last3']:.2f})."]
+        lines += [
+            "",
+            f"The reused DrS reward {'beat' if gap >= 0.2 else 'did not clearly beat'} sparse, the paper's baseline "
+            f"({drs:.2f} vs {p2['sparse']['success_last3']:.2f}).",
+        ]
     if "semi_sparse" in p2:
-        lines.append(f"Semi-sparse is DrS's own constant part without the learned term ({p2['semi_sparse']['success_last3']:.2f}); "
-                     f"on this maze the learned term has not been shown to add to it (results/maze/README.md).")
+        lines.append(
+            f"Semi-sparse is DrS's own constant part without the learned term ({p2['semi_sparse']['success_last3']:.2f}); "
+            f"on this maze the learned term has not been shown to add to it (results/maze/README.md)."
+        )
     lines += [
         "One seed says little: over seeds 0, 1, 2 of this command DrS reached 0.96, 0.99 and 0.00 (the seed-2 reward",
         "held its agent away from the goal), sparse 0.35, 0.00, 0.00 (results/quickstart/README.md).",
@@ -362,9 +419,12 @@ def main(cfg: DictConfig) -> None:
         sys.exit(2)
     todo = [j for j in jobs if j.name not in kept]
     print(f"drs-quickstart: DrS on the three-room maze, seed {cfg.seed}, into {out}", flush=True)
-    print(f"  phase 1 learns the reward on the train map; phase 2 reuses it on the test map beside "
-          f"{', '.join(LABELS.get(b, b) for b in cfg.baselines)}; {len(todo)} runs of {int(cfg.total_frames)} env steps, "
-          f"{int(cfg.jobs)} at a time (16 min on an idle 2-core CPU at the defaults)", flush=True)
+    print(
+        f"  phase 1 learns the reward on the train map; phase 2 reuses it on the test map beside "
+        f"{', '.join(LABELS.get(b, b) for b in cfg.baselines)}; {len(todo)} runs of {int(cfg.total_frames)} env steps, "
+        f"{int(cfg.jobs)} at a time (16 min on an idle 2-core CPU at the defaults)",
+        flush=True,
+    )
     for name in kept:
         print(f"  {name}: finished earlier, kept", flush=True)
     t0 = time.perf_counter()
@@ -377,8 +437,11 @@ def main(cfg: DictConfig) -> None:
         sys.exit(1)
     progress.close()
     if sig is not None:
-        print(f"drs-quickstart: interrupted; finished runs are kept in {out}. Run the same command again to continue.",
-              file=sys.stderr, flush=True)
+        print(
+            f"drs-quickstart: interrupted; finished runs are kept in {out}. Run the same command again to continue.",
+            file=sys.stderr,
+            flush=True,
+        )
         sys.exit(128 + int(sig))
     plot(jobs, out)
     summary = summarize(jobs, out, round(time.perf_counter() - t0, 1) if todo else None)

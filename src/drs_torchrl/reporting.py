@@ -6,6 +6,7 @@ env steps/s, all against env steps. Several runs given together are overlaid in 
 ``drs-plot RUN_DIR --reward-episode``: the paper's Fig. 3, the learned reward along one episode
 against the semi-sparse staircase it fills in (``reward_episode.png``).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -43,7 +44,9 @@ def plot_runs(run_dirs: list[Path], out: Path) -> Path:
         if ev is not None:
             ax_eval.plot(ev["step"], ev["success_rate"], marker="o", label=f"{tag} eval success".strip())
             for c in sorted(c for c in ev.columns if c.startswith("reach_stage_")):
-                ax_eval.plot(ev["step"], ev[c], ls="--", alpha=0.6, label=f"{tag} eval {c.replace('reach_', '')}".strip())
+                ax_eval.plot(
+                    ev["step"], ev[c], ls="--", alpha=0.6, label=f"{tag} eval {c.replace('reach_', '')}".strip()
+                )
         for c in sorted(c for c in train.columns if c.startswith("disc_accuracy_")):
             ax_disc.plot(x, train[c], label=f"{tag} D_{c.rsplit('_', 1)[1]}".strip())
         if "disc_accuracy" in train and train["disc_accuracy"].notna().any():  # a baseline's single classifier
@@ -99,7 +102,9 @@ def plot_reward_episode(run_dir: Path, out: Path, *, split: str | None = None, t
     res = evaluate_run(run_dir, episodes=tries, split=split, deterministic=False, seed=seed, keep_episodes=True)
     desc = res["reward"]
     if "num_stages" not in desc:
-        raise EvalError(f"{run_dir} trained with reward={desc['name']}, not a learned DrS reward: nothing to illustrate")
+        raise EvalError(
+            f"{run_dir} trained with reward={desc['name']}, not a learned DrS reward: nothing to illustrate"
+        )
     best = max(range(len(res["rows"])), key=lambda i: (res["rows"][i]["stage"], -i))
     ep = res["episodes_data"][best]
     N, formula, offset = desc["num_stages"], desc["formula"], desc["offset"]
@@ -130,18 +135,25 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="drs-plot", description="plot drs-torchrl runs")
     p.add_argument("runs", nargs="+", type=Path)
     p.add_argument("--out", type=Path, default=None)
-    p.add_argument("--reward-episode", action="store_true",
-                   help="instead: the learned reward along one episode of the run's policy against the semi-sparse "
-                        "staircase (the paper's Fig. 3), written to RUN/reward_episode.png")
+    p.add_argument(
+        "--reward-episode",
+        action="store_true",
+        help="instead: the learned reward along one episode of the run's policy against the semi-sparse "
+        "staircase (the paper's Fig. 3), written to RUN/reward_episode.png",
+    )
     p.add_argument("--split", default=None, help="with --reward-episode: train | test | a variant (default: the run's)")
-    p.add_argument("--tries", type=int, default=10, help="with --reward-episode: episodes tried; the furthest-reaching is drawn")
+    p.add_argument(
+        "--tries", type=int, default=10, help="with --reward-episode: episodes tried; the furthest-reaching is drawn"
+    )
     a = p.parse_args(argv)
     try:
         if a.reward_episode:
             from drs_torchrl.console import quiet_libraries
 
             quiet_libraries()
-            out = plot_reward_episode(a.runs[0], a.out or a.runs[0] / "reward_episode.png", split=a.split, tries=a.tries)
+            out = plot_reward_episode(
+                a.runs[0], a.out or a.runs[0] / "reward_episode.png", split=a.split, tries=a.tries
+            )
         else:
             out = plot_runs(a.runs, a.out or a.runs[0] / "progress.png")
     except (FileNotFoundError, ValueError, KeyError) as exc:

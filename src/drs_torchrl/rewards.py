@@ -14,6 +14,7 @@ human-engineered normalized dense reward, shifted by -1 so that its maximum is 0
 on success beats hovering short of it, as for every other reward here; for a Gymnasium family such as
 HalfCheetah, Appendix G, the env's own reward, unshifted).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -57,23 +58,30 @@ def reward_setup(cfg, phase: str) -> RewardSetup:
         return RewardSetup(name, semi_sparse=True, semi_sparse_offset=None if off is None else float(off))
     if name == "dense":
         off = cfg.get("offset")
-        return RewardSetup(name, env_reward_mode="normalized_dense", env_reward_offset=None if off is None else float(off))
+        return RewardSetup(
+            name, env_reward_mode="normalized_dense", env_reward_offset=None if off is None else float(off)
+        )
     # a learned reward: phase 1 learns it (Trainer builds the learner), phase 2 loads it frozen
     if phase == "learn":
         if cfg.get("checkpoint"):
             raise ValueError(f"reward.checkpoint is for drs-reuse; drs-learn learns the {name} reward from scratch")
         return RewardSetup(name)
     if not cfg.get("checkpoint"):
-        raise ValueError(f"drs-reuse with reward={name} needs reward.checkpoint=PATH (a reward.pt written by "
-                         f"drs-learn reward={_CHECKPOINT_METHOD[name]})")
+        raise ValueError(
+            f"drs-reuse with reward={name} needs reward.checkpoint=PATH (a reward.pt written by "
+            f"drs-learn reward={_CHECKPOINT_METHOD[name]})"
+        )
     frozen = load_reward(cfg.checkpoint)
     method = "drs" if isinstance(frozen, DrSReward) else frozen.method
     if method != _CHECKPOINT_METHOD[name]:
-        raise RewardCheckpointError(f"reward={name} reuses a reward learned by drs-learn reward={_CHECKPOINT_METHOD[name]}, "
-                                    f"but {cfg.checkpoint} was learned by reward={method}; use reward={method}")
+        raise RewardCheckpointError(
+            f"reward={name} reuses a reward learned by drs-learn reward={_CHECKPOINT_METHOD[name]}, "
+            f"but {cfg.checkpoint} was learned by reward={method}; use reward={method}"
+        )
     if name == "gail_stages":  # Appendix F.2: GAIL's reward combined linearly with the semi-sparse one
-        frozen = ClassifierReward.from_checkpoint(cfg.checkpoint, stage_weight=float(cfg.stage_weight),
-                                                  classifier_weight=float(cfg.classifier_weight))
+        frozen = ClassifierReward.from_checkpoint(
+            cfg.checkpoint, stage_weight=float(cfg.stage_weight), classifier_weight=float(cfg.classifier_weight)
+        )
     frozen.requires_grad_(False)
     frozen.eval()
     return RewardSetup(name, frozen=frozen)
@@ -109,35 +117,65 @@ def new_classifier_reward(cfg, family: TaskFamily, observation_spec, action_spec
     shapes = {}
     for k in in_keys:
         if k not in observation_spec.keys(True, True):
-            raise KeyError(f"reward input {k!r} is not in the observation spec; it has {list(observation_spec.keys(True, True))}")
+            raise KeyError(
+                f"reward input {k!r} is not in the observation spec; it has {list(observation_spec.keys(True, True))}"
+            )
         shapes[k] = int(observation_spec[k].shape[-1])
     use_action = bool(cfg.get("use_action", False))
     return ClassifierReward(
-        in_keys, shapes, family.num_stages, use_action=use_action,
-        action_dim=int(action_spec.shape[-1]) if use_action else None, output=str(cfg.output),
-        offset=float(cfg.get("offset") or 0.0), hidden=list(cfg.hidden), activation=str(cfg.activation),
-        method=_CHECKPOINT_METHOD[cfg.name], metadata=metadata,
+        in_keys,
+        shapes,
+        family.num_stages,
+        use_action=use_action,
+        action_dim=int(action_spec.shape[-1]) if use_action else None,
+        output=str(cfg.output),
+        offset=float(cfg.get("offset") or 0.0),
+        hidden=list(cfg.hidden),
+        activation=str(cfg.activation),
+        method=_CHECKPOINT_METHOD[cfg.name],
+        metadata=metadata,
     )
 
 
 def new_reward_learner(cfg, family: TaskFamily, env, metadata: dict, *, device, autocast, step_fn, demos=None):
     """The phase-1 learner of ``reward=<name>`` (``cfg`` is the ``reward`` config group)."""
-    from drs_torchrl.learners import DemoDiscriminatorLearner, DrSLearner, OfflineClassifierLearner, SuccessClassifierLearner
+    from drs_torchrl.learners import (
+        DemoDiscriminatorLearner,
+        DrSLearner,
+        OfflineClassifierLearner,
+        SuccessClassifierLearner,
+    )
 
     d = cfg.disc
     common = dict(lr=float(d.lr), fused=bool(d.get("fused", False)), device=device, autocast=autocast, step_fn=step_fn)
     if cfg.name == "drs":
         reward = new_drs_reward(cfg, family, env.observation_spec, metadata).to(device)
-        return DrSLearner(reward, capacity=int(cfg.stage_buffer_size), batch_size=int(d.batch_size),
-                          scratch_dir=cfg.get("stage_buffer_scratch_dir"), updates_per_rl_update=float(d.updates_per_sac_update),
-                          early_stop_threshold=d.early_stop_threshold, window=int(d.window), latch=bool(d.get("latch", True)),
-                          demos=demos, **common)
+        return DrSLearner(
+            reward,
+            capacity=int(cfg.stage_buffer_size),
+            batch_size=int(d.batch_size),
+            scratch_dir=cfg.get("stage_buffer_scratch_dir"),
+            updates_per_rl_update=float(d.updates_per_sac_update),
+            early_stop_threshold=d.early_stop_threshold,
+            window=int(d.window),
+            latch=bool(d.get("latch", True)),
+            demos=demos,
+            **common,
+        )
     reward = new_classifier_reward(cfg, family, env.observation_spec, env.action_spec, metadata).to(device)
     common.update(batch_size=int(d.batch_size), updates_per_rl_update=float(d.updates_per_sac_update))
     if cfg.name == "vice_raq":
-        return SuccessClassifierLearner(reward, success_key=family.stage_keys[-1], capacity=int(cfg.buffer_size), **common)
+        return SuccessClassifierLearner(
+            reward, success_key=family.stage_keys[-1], capacity=int(cfg.buffer_size), **common
+        )
     if cfg.name == "oril":
-        return OfflineClassifierLearner(reward, demos=demos, capacity=int(cfg.buffer_size),
-                                        random_episodes=int(cfg.random_episodes), offline_updates=int(cfg.offline_updates), **common)
+        return OfflineClassifierLearner(
+            reward,
+            demos=demos,
+            capacity=int(cfg.buffer_size),
+            random_episodes=int(cfg.random_episodes),
+            offline_updates=int(cfg.offline_updates),
+            **common,
+        )
     # gail, gail_stages (phase 1 of both is GAIL)
     return DemoDiscriminatorLearner(reward, demos=demos, grad_penalty=bool(cfg.get("grad_penalty", False)), **common)

@@ -9,6 +9,7 @@ logger can be added to :class:`RunLogger`, and :class:`WideCSVLogger` can serve 
 * :class:`ResumableTensorboardLogger` is TorchRL's ``TensorboardLogger`` with a purge step, so a
   resumed run's curves have no duplicate tail (TorchRL's logger cannot pass ``purge_step``).
 """
+
 from __future__ import annotations
 
 import csv
@@ -139,7 +140,9 @@ class WideCSVLogger(Logger):
         torch.save(video.detach().cpu(), out / f"{name.replace('/', '_')}_{int(step or 0)}.pt")
 
     def log_histogram(self, name: str, data: Sequence, **kwargs):
-        raise LoggerConfigError("the wide CSV logger keeps scalars only; histograms go to TensorBoard (logger.tensorboard=true)")
+        raise LoggerConfigError(
+            "the wide CSV logger keeps scalars only; histograms go to TensorBoard (logger.tensorboard=true)"
+        )
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(log_dir={self.log_dir!r})"
@@ -165,7 +168,9 @@ def make_wandb_logger(run_dir: Path, project: str, mode: str):
         from torchrl.record.loggers.wandb import WandbLogger
         import wandb  # noqa: F401
     except ImportError as exc:
-        raise LoggerConfigError("logger.wandb=true needs the wandb package: pip install wandb (or set logger.wandb=false)") from exc
+        raise LoggerConfigError(
+            "logger.wandb=true needs the wandb package: pip install wandb (or set logger.wandb=false)"
+        ) from exc
     if mode not in ("offline", "online"):
         raise LoggerConfigError(f"logger.wandb_mode must be offline or online, got {mode!r}")
     return WandbLogger(exp_name=run_dir.name, save_dir=str(run_dir), project=project, offline=mode == "offline")
@@ -179,9 +184,17 @@ class RunLogger:
     draw NaN as gaps or errors).
     """
 
-    def __init__(self, run_dir: str | Path, tensorboard: bool = True, csv_files: bool = True, resume_step: int | None = None,
-                 wandb: bool = False, wandb_project: str = "drs-torchrl", wandb_mode: str = "offline",
-                 backends: Sequence[Logger] = ()):
+    def __init__(
+        self,
+        run_dir: str | Path,
+        tensorboard: bool = True,
+        csv_files: bool = True,
+        resume_step: int | None = None,
+        wandb: bool = False,
+        wandb_project: str = "drs-torchrl",
+        wandb_mode: str = "offline",
+        backends: Sequence[Logger] = (),
+    ):
         self.run_dir = Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
         self.backends: list[Logger] = []

@@ -12,6 +12,7 @@
   folder is needed, a folder where a file is, a read-only place), not after minutes of work.
 * :func:`load_run_config` reads a run's ``config.yaml``, or says how it is damaged and where a copy is.
 """
+
 from __future__ import annotations
 
 import atexit
@@ -56,8 +57,9 @@ def lock_run_dir(run_dir: str | os.PathLike, elsewhere: str = "give this run ano
             os.close(fd)
             if exc.errno not in (errno.EAGAIN, errno.EACCES):
                 raise
-            raise RunDirBusyError(f"{d} is being written by another process (pid {holder}); wait for it to end or stop "
-                                  f"it, or {elsewhere}") from None
+            raise RunDirBusyError(
+                f"{d} is being written by another process (pid {holder}); wait for it to end or stop it, or {elsewhere}"
+            ) from None
         try:  # the file we locked may have been removed by its holder's release meanwhile: then lock the new one
             if os.stat(d / LOCK_NAME).st_ino == os.fstat(fd).st_ino:
                 break
@@ -125,8 +127,10 @@ def ensure_free(path: str | os.PathLike, need: int, what: str) -> None:
     """Raise :class:`DiskFullError` unless ``need`` bytes (plus a little slack) fit where ``path`` goes."""
     free = free_bytes(path)
     if need + SLACK > free:
-        raise DiskFullError(f"not enough space to write {what} {path}: it needs about {_mib(need + SLACK)}, "
-                            f"{_mib(free)} are free; free some space there")
+        raise DiskFullError(
+            f"not enough space to write {what} {path}: it needs about {_mib(need + SLACK)}, "
+            f"{_mib(free)} are free; free some space there"
+        )
 
 
 @contextlib.contextmanager
@@ -141,8 +145,9 @@ def space_errors(path: str | os.PathLike, what: str):
             cause = cause.__context__
         if cause is None:
             raise
-        raise DiskFullError(f"the disk filled while writing {what} {path} ({_mib(free_bytes(path))} free "
-                            "now); free some space there") from exc
+        raise DiskFullError(
+            f"the disk filled while writing {what} {path} ({_mib(free_bytes(path))} free now); free some space there"
+        ) from exc
 
 
 def load_run_config(run_dir: str | os.PathLike, needs: tuple[str, ...] = ("phase", "env", "reward", "algo")):
@@ -153,13 +158,18 @@ def load_run_config(run_dir: str | os.PathLike, needs: tuple[str, ...] = ("phase
 
     path = Path(run_dir) / "config.yaml"
     record = Path(run_dir) / ".hydra" / "config.yaml"
-    fix = (f"restore it (the run's Hydra record {record} holds the config it started with, its values unresolved)"
-           if record.is_file() else "restore it from a copy")
+    fix = (
+        f"restore it (the run's Hydra record {record} holds the config it started with, its values unresolved)"
+        if record.is_file()
+        else "restore it from a copy"
+    )
     try:
         cfg = OmegaConf.load(path)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
-        raise RunFileError(f"{path} is damaged (not valid YAML{f' at line {mark.line + 1}' if mark else ''}); {fix}") from None
+        raise RunFileError(
+            f"{path} is damaged (not valid YAML{f' at line {mark.line + 1}' if mark else ''}); {fix}"
+        ) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise RunFileError(f"{path} cannot be read ({exc.__class__.__name__}: {exc}); {fix}") from None
     missing = [k for k in needs if not isinstance(cfg, DictConfig) or k not in cfg]
@@ -199,5 +209,6 @@ def read_run_csv(path: str | os.PathLike):
         return pd.read_csv(path)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, ValueError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise RunFileError(f"{path} is damaged (not a readable CSV: {first}); restore it from the run's record, "
-                           "or leave this run out") from None
+        raise RunFileError(
+            f"{path} is damaged (not a readable CSV: {first}); restore it from the run's record, or leave this run out"
+        ) from None

@@ -59,6 +59,7 @@ the committed copy of that reward (the phase-1 run's ``OUT/run_files/NAME/reward
 else the file itself when it lies outside the run root) pinned by hash; ``drs-eval`` loads the reward from there and
 refuses a file whose hash differs. ``config.yaml`` stays as the run composed it.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -157,6 +158,7 @@ def load_study(path: str | Path) -> tuple[Path, list[Run]]:
 @dataclass
 class Figure:
     """A curated comparison of some of a study's groups (run names without their seeds)."""
+
     name: str
     groups: list[str]
     title: str = ""
@@ -181,7 +183,9 @@ def _parse_figures(path: Path, spec, runs: list[Run]) -> list[Figure]:
         groups = [str(g) for g in fig["groups"]]
         unknown = [g for g in groups if g not in known]
         if unknown:
-            raise StudyError(f"{path}: figure {name}: groups {unknown} name no run of the study (its groups: {', '.join(known)})")
+            raise StudyError(
+                f"{path}: figure {name}: groups {unknown} name no run of the study (its groups: {', '.join(known)})"
+            )
         labels = {str(k): str(v) for k, v in (fig.get("labels") or {}).items()}
         stray = [k for k in labels if k not in groups]
         if stray:
@@ -231,7 +235,11 @@ def study_state(root: Path, record: Path | None, run: Run) -> str:
     if running_pid(root, run.name) is not None:
         return "running"
     state = run_state(root / run.name, wanted_frames(run))
-    if state == "new" and record is not None and run_state(record / "run_files" / run.name, wanted_frames(run)) == "finished":
+    if (
+        state == "new"
+        and record is not None
+        and run_state(record / "run_files" / run.name, wanted_frames(run)) == "finished"
+    ):
         return "recorded"
     return state
 
@@ -239,6 +247,7 @@ def study_state(root: Path, record: Path | None, run: Run) -> str:
 def resolve_args(run: Run, root: Path, record: Path | None) -> list[str]:
     """The run's arguments with ``<reward:NAME>`` / ``<policy:NAME>`` replaced by NAME's checkpoint:
     its run directory's, else the record's."""
+
     def where(m: re.Match) -> str:
         file = f"{m.group(1)}.pt"
         live = root / m.group(2) / "checkpoints" / file
@@ -269,7 +278,9 @@ def check_run(run: Run, root: Path, record: Path | None) -> str | None:
         key = key.lstrip("+")
         if key not in _FILE_ARGS or value in ("", "null") or Path(value).exists() or _CHECKPOINT_REF.search(raw):
             continue
-        if not any(Path(value).resolve().is_relative_to((root / n).resolve()) for n in run.needs):  # else a need writes it
+        if not any(
+            Path(value).resolve().is_relative_to((root / n).resolve()) for n in run.needs
+        ):  # else a need writes it
             return f"{key}={value}: no such file"
     try:
         with initialize_config_dir(config_dir=apps.conf_dir(), version_base=None):
@@ -350,8 +361,11 @@ def _repo_path(path: Path) -> str:
 def pin_reward(record_dir: Path, committed: Path | None, ran_with: str, note: str = "") -> Path:
     """Write ``record_dir/reward.json``: the committed reward file a reuse record reused and its sha256
     (``committed=None``: the reward was not committed, ``note`` says so)."""
-    pin = {"checkpoint": _repo_path(committed) if committed is not None else None,
-           "sha256": sha256_file(committed) if committed is not None else None, "ran_with": ran_with}
+    pin = {
+        "checkpoint": _repo_path(committed) if committed is not None else None,
+        "sha256": sha256_file(committed) if committed is not None else None,
+        "ran_with": ran_with,
+    }
     if note:
         pin["note"] = note
     (record_dir / REWARD_PIN).write_text(json.dumps(pin, indent=1) + "\n")
@@ -372,15 +386,21 @@ def pinned_reward(run_dir: str | Path) -> Path | None:
     except (ValueError, KeyError, TypeError):
         raise RecordError(f"{f} is not a reward pin (a JSON object with checkpoint and sha256)") from None
     if checkpoint is None:
-        raise RecordError(f"{run_dir}: the reward this run reused ({pin.get('ran_with')}) was not committed"
-                          + (f": {pin['note']}" if pin.get("note") else ""))
+        raise RecordError(
+            f"{run_dir}: the reward this run reused ({pin.get('ran_with')}) was not committed"
+            + (f": {pin['note']}" if pin.get("note") else "")
+        )
     rel = Path(checkpoint)
-    where = [rel] if rel.is_absolute() else [a / rel for a in (run_dir.resolve(), *run_dir.resolve().parents, Path.cwd())]
+    where = (
+        [rel] if rel.is_absolute() else [a / rel for a in (run_dir.resolve(), *run_dir.resolve().parents, Path.cwd())]
+    )
     found = next((w for w in where if w.is_file()), None)
     if found is None:
         raise RecordError(f"{f} pins {checkpoint}, which is not in this checkout")
     if sha256_file(found) != digest:
-        raise RecordError(f"{found} is not the reward {f} pins (sha256 differs): the record's reward was changed or replaced")
+        raise RecordError(
+            f"{found} is not the reward {f} pins (sha256 differs): the record's reward was changed or replaced"
+        )
     return found
 
 
@@ -401,11 +421,16 @@ def _pin_reuse_record(dst: Path, root: Path, files: Path) -> None:
     elif live.is_file():  # a committed reward (or any file outside the run root), named as it is
         committed = live
     if committed is None or not committed.is_file():
-        print(f"drs-study: report: {dst.name} reused {used}, which the record does not hold: its reward.json is "
-              f"not written (commit that reward and pin it so that the record evaluates elsewhere)", file=sys.stderr)
+        print(
+            f"drs-study: report: {dst.name} reused {used}, which the record does not hold: its reward.json is "
+            f"not written (commit that reward and pin it so that the record evaluates elsewhere)",
+            file=sys.stderr,
+        )
         return
     if live.is_file() and live != committed.resolve() and sha256_file(live) != sha256_file(committed):
-        print(f"drs-study: report: {dst.name} reused {used}, which differs from {committed}: not pinned", file=sys.stderr)
+        print(
+            f"drs-study: report: {dst.name} reused {used}, which differs from {committed}: not pinned", file=sys.stderr
+        )
         return
     pin_reward(dst, committed, str(used))
 
@@ -496,21 +521,30 @@ def work_left(root: Path, record: Path | None, runs: list[Run], states: dict[str
     if not left:
         return f"left: nothing, all {len(runs)} runs done"
     early = any(r.app == "learn" for r in left)
-    line = (f"left: {len(left)} of {len(runs)} runs, {'at most ' if early else ''}{steps:,} env steps"
-            + (" (phase-1 runs stop early at stop_at_success)" if early else ""))
+    line = f"left: {len(left)} of {len(runs)} runs, {'at most ' if early else ''}{steps:,} env steps" + (
+        " (phase-1 runs stop early at stop_at_success)" if early else ""
+    )
     if unsized:
         line += f", not counting {len(unsized)} run(s) without a total_frames ({', '.join(unsized)})"
     if speeds:
         v = sorted(speeds)[len(speeds) // 2]
-        line += (f"; at {v:.1f} env steps/s per run (median of {len(speeds)} {where}) about "
-                 f"{_duration(steps / v)} of runs, {_duration(steps / v / max(jobs, 1))} with --jobs {max(jobs, 1)}")
+        line += (
+            f"; at {v:.1f} env steps/s per run (median of {len(speeds)} {where}) about "
+            f"{_duration(steps / v)} of runs, {_duration(steps / v / max(jobs, 1))} with --jobs {max(jobs, 1)}"
+        )
     else:
         line += "; no run has measured its speed yet"
     return line
 
 
-def report(root: Path, runs: list[Run], out: Path, study_file: str | Path = "",
-           record: Path | None = None, figures: list[Figure] | None = None) -> dict[str, Path]:
+def report(
+    root: Path,
+    runs: list[Run],
+    out: Path,
+    study_file: str | Path = "",
+    record: Path | None = None,
+    figures: list[Figure] | None = None,
+) -> dict[str, Path]:
     """Copy each run's record into ``out/run_files``, write ``out/status.md`` and the comparisons (and each of
     ``figures`` into ``out/figures/<name>/``).
 
@@ -540,8 +574,12 @@ def report(root: Path, runs: list[Run], out: Path, study_file: str | Path = "",
         shown = run_dir if (run_dir / "train.csv").is_file() else dst
         if state == "new" and (dst / "train.csv").is_file():
             state = "new (an unfinished earlier record)"  # its training state is gone: it starts again
-        rows.append(f"| `{r.name}` | {r.app} | {state} | {_frames(shown):,} ({asked if asked else 'its default'}) | {_last_eval(shown)} |")
-        if (dst / "config.yaml").is_file() and state in DONE:  # the comparison: finished runs only (status.md has the rest)
+        rows.append(
+            f"| `{r.name}` | {r.app} | {state} | {_frames(shown):,} ({asked if asked else 'its default'}) | {_last_eval(shown)} |"
+        )
+        if (
+            dst / "config.yaml"
+        ).is_file() and state in DONE:  # the comparison: finished runs only (status.md has the rest)
             copied[r.app].append(dst)
     for r in runs:  # after every copy: a reuse run's reward is the record of a phase-1 run listed after it
         if r.app == "reuse" and (root / r.name / "train.csv").is_file() and (files / r.name / "config.yaml").is_file():
@@ -579,8 +617,12 @@ def report(root: Path, runs: list[Run], out: Path, study_file: str | Path = "",
         if not dirs:
             continue
         try:
-            made = compare(dirs, out / "figures" / fig.name, title=fig.title,
-                           labels=[fig.labels.get(group_name(d.name), group_name(d.name)) for d in dirs])
+            made = compare(
+                dirs,
+                out / "figures" / fig.name,
+                title=fig.title,
+                labels=[fig.labels.get(group_name(d.name), group_name(d.name)) for d in dirs],
+            )
         except CompareError as exc:
             print(f"drs-study: report: figure {fig.name} not drawn: {exc}", file=sys.stderr)
             continue
@@ -598,14 +640,24 @@ def _env_split(run_dir: Path) -> str:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="drs-study", description=__doc__.split("\n")[0])
     p.add_argument("study", help="study YAML file")
-    p.add_argument("--jobs", "-j", type=int, default=2, help="runs side by side (default 2: one per core of a 2-core machine)")
+    p.add_argument(
+        "--jobs", "-j", type=int, default=2, help="runs side by side (default 2: one per core of a 2-core machine)"
+    )
     p.add_argument("--threads", type=int, default=1, help="torch threads per run (default 1)")
     p.add_argument("--status", action="store_true", help="print each run's state and exit")
     p.add_argument("--only", nargs="*", default=None, help="run only these run names")
-    p.add_argument("--check", action="store_true",
-                   help="compose and validate every run's config (overrides, files, values) without running; exit 2 on a problem")
-    p.add_argument("--report", type=Path, metavar="OUT", default=None,
-                   help="write the study's record (run files, status.md, drs-compare figures) into OUT and exit")
+    p.add_argument(
+        "--check",
+        action="store_true",
+        help="compose and validate every run's config (overrides, files, values) without running; exit 2 on a problem",
+    )
+    p.add_argument(
+        "--report",
+        type=Path,
+        metavar="OUT",
+        default=None,
+        help="write the study's record (run files, status.md, drs-compare figures) into OUT and exit",
+    )
     a = p.parse_args(argv)
     try:
         root, runs = load_study(a.study)
@@ -624,8 +676,10 @@ def main(argv: list[str] | None = None) -> int:
     states = {r.name: study_state(root, record, r) for r in runs}
     if a.report is not None:
         if a.report.resolve() == root.resolve() or root.resolve() in a.report.resolve().parents:
-            print(f"drs-study: error: --report {a.report} is inside the study's run root {root}: give a results folder",
-                  file=sys.stderr)
+            print(
+                f"drs-study: error: --report {a.report} is inside the study's run root {root}: give a results folder",
+                file=sys.stderr,
+            )
             return 2
         for path in report(root, runs, a.report, a.study, record, load_figures(a.study)).values():
             print(path)
@@ -642,14 +696,19 @@ def main(argv: list[str] | None = None) -> int:
     problems = {r.name: check_run(r, root, record) for r in (runs if a.check else pending)}
     if a.check:
         for r in runs:
-            print(f"{'ok' if problems[r.name] is None else 'error':>6}  {r.name}" + (f": {problems[r.name]}" if problems[r.name] else ""))
+            print(
+                f"{'ok' if problems[r.name] is None else 'error':>6}  {r.name}"
+                + (f": {problems[r.name]}" if problems[r.name] else "")
+            )
     bad = {n: p for n, p in problems.items() if p is not None}
     if bad:
         if not a.check:
             for n, p in bad.items():
                 print(f"drs-study: error: run {n}: {p}", file=sys.stderr)
-            print(f"drs-study: nothing started: fix {len(bad)} run(s) in {a.study} (or leave them out with --only)",
-                  file=sys.stderr)
+            print(
+                f"drs-study: nothing started: fix {len(bad)} run(s) in {a.study} (or leave them out with --only)",
+                file=sys.stderr,
+            )
         return 2
     if a.check:
         return 0

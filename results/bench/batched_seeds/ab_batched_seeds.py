@@ -14,6 +14,7 @@ inside torch.distributions' ``Normal.rsample`` (an in-place ``normal_`` on an un
 the vmapped variant runs with ``randomness="same"`` (every seed draws the same actor noise): fine
 for timing, not for independent seeds.
 """
+
 import argparse
 import json
 import platform
@@ -31,17 +32,26 @@ def make_loss(n_obs: int, n_act: int) -> SACLoss:
     obs_spec = Composite(observation=Unbounded(shape=(n_obs,)))
     act_spec = Bounded(-1.0, 1.0, shape=(n_act,))
     actor, qvalue = make_sac_modules(obs_spec, act_spec, ["observation"], [256, 256, 256])
-    loss = SACLoss(actor, qvalue, num_qvalue_nets=2, loss_function="l2", alpha_init=1.0, action_spec=act_spec,
-                   deactivate_vmap=True)
+    loss = SACLoss(
+        actor, qvalue, num_qvalue_nets=2, loss_function="l2", alpha_init=1.0, action_spec=act_spec, deactivate_vmap=True
+    )
     loss.make_value_estimator(gamma=0.8)
     return loss
 
 
 def synthetic_batch(shape: tuple[int, ...], n_obs: int, n_act: int) -> TensorDict:
     false = torch.zeros(*shape, 1, dtype=torch.bool)
-    return TensorDict({"observation": torch.randn(*shape, n_obs), "action": torch.rand(*shape, n_act) * 2 - 1,
-                       ("next", "observation"): torch.randn(*shape, n_obs), ("next", "reward"): torch.randn(*shape, 1),
-                       ("next", "done"): false, ("next", "terminated"): false.clone()}, batch_size=shape)
+    return TensorDict(
+        {
+            "observation": torch.randn(*shape, n_obs),
+            "action": torch.rand(*shape, n_act) * 2 - 1,
+            ("next", "observation"): torch.randn(*shape, n_obs),
+            ("next", "reward"): torch.randn(*shape, 1),
+            ("next", "done"): false,
+            ("next", "terminated"): false.clone(),
+        },
+        batch_size=shape,
+    )
 
 
 def total(out) -> torch.Tensor:
@@ -59,17 +69,24 @@ def separate_updates(S: int, batch: int, n_obs: int, n_act: int):
             total(loss(d)).backward()
             opt.step()
             opt.zero_grad()
+
     return step
 
 
 def vmapped_update(S: int, batch: int, n_obs: int, n_act: int):
     """One SACLoss evaluated under torch.vmap over S stacked parameter sets (and S batches)."""
     loss = make_loss(n_obs, n_act)
-    params = TensorDict.stack([TensorDict.from_module(make_loss(n_obs, n_act), as_module=False)
-                               for _ in range(S)]).detach().clone()
+    params = (
+        TensorDict.stack([TensorDict.from_module(make_loss(n_obs, n_act), as_module=False) for _ in range(S)])
+        .detach()
+        .clone()
+    )
     trained = ("actor_network_params", "qvalue_network_params")
-    leaves = [params[k].requires_grad_() for k in params.keys(True, True)
-              if k == "log_alpha" or (isinstance(k, tuple) and k[0] in trained)]
+    leaves = [
+        params[k].requires_grad_()
+        for k in params.keys(True, True)
+        if k == "log_alpha" or (isinstance(k, tuple) and k[0] in trained)
+    ]
     opt = torch.optim.Adam(leaves, lr=3e-4, fused=True)
     data = synthetic_batch((S, batch), n_obs, n_act)
 
@@ -83,6 +100,7 @@ def vmapped_update(S: int, batch: int, n_obs: int, n_act: int):
         losses(params, data).sum().backward()
         opt.step()
         opt.zero_grad()
+
     return step
 
 
@@ -101,9 +119,11 @@ def main():
     torch.manual_seed(0)
     rows = []
     for S in a.seeds:
-        variants = {"separate": separate_updates(S, a.batch, a.obs, a.act),
-                    "vmapped": vmapped_update(S, a.batch, a.obs, a.act),
-                    "one seed, batch S x B": separate_updates(1, S * a.batch, a.obs, a.act)}
+        variants = {
+            "separate": separate_updates(S, a.batch, a.obs, a.act),
+            "vmapped": vmapped_update(S, a.batch, a.obs, a.act),
+            "one seed, batch S x B": separate_updates(1, S * a.batch, a.obs, a.act),
+        }
         for step in variants.values():
             for _ in range(3):
                 step()
@@ -118,13 +138,23 @@ def main():
         row["speedup_vmapped"] = row["ms_separate"] / row["ms_vmapped"]
         row["speedup_bound"] = row["ms_separate"] / row["ms_one seed, batch S x B"]
         rows.append(row)
-        print(f"S={S}: {S} separate updates {row['ms_separate']:.1f} ms, vmapped {row['ms_vmapped']:.1f} ms "
-              f"({row['speedup_vmapped']:.2f}x), one seed at batch {S * a.batch} {row['ms_one seed, batch S x B']:.1f} ms "
-              f"({row['speedup_bound']:.2f}x)", flush=True)
+        print(
+            f"S={S}: {S} separate updates {row['ms_separate']:.1f} ms, vmapped {row['ms_vmapped']:.1f} ms "
+            f"({row['speedup_vmapped']:.2f}x), one seed at batch {S * a.batch} {row['ms_one seed, batch S x B']:.1f} ms "
+            f"({row['speedup_bound']:.2f}x)",
+            flush=True,
+        )
     if a.json:
         with open(a.json, "w") as f:
-            json.dump({"args": vars(a), "machine": {"cpu": platform.processor() or platform.machine(),
-                                                    "torch": torch.__version__}, "results": rows}, f, indent=2)
+            json.dump(
+                {
+                    "args": vars(a),
+                    "machine": {"cpu": platform.processor() or platform.machine(), "torch": torch.__version__},
+                    "results": rows,
+                },
+                f,
+                indent=2,
+            )
 
 
 if __name__ == "__main__":

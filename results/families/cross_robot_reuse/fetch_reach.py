@@ -12,6 +12,7 @@ Panda-learned reward say along the way?
 3. The best scripted Fetch approach found: the arm down first, then at the cube, with the base
    driving forward.
 """
+
 from pathlib import Path
 
 import torch
@@ -83,8 +84,11 @@ def main():
     for down in (5, 10):
         for base in (0.0, 1.0):
             dist, logit = scripted(env, down_first=down, base=base)
-            print(f"  down {down:2d}, base {base:.0f}: " + " ".join(f"{x:.2f}" for x in dist[4::5])
-                  + f"   D_0 at the end {logit[-1]:.2f}")
+            print(
+                f"  down {down:2d}, base {base:.0f}: "
+                + " ".join(f"{x:.2f}" for x in dist[4::5])
+                + f"   D_0 at the end {logit[-1]:.2f}"
+            )
     env.close()
 
 

@@ -10,6 +10,7 @@ For each run (``policy.pt`` + ``config.yaml``, on the run's own map):
   a shortest-path move, and the mean of ``max_a Q`` and of the action gap (best minus second best)
   at shortest-path distance 1, 2, 5, 10, 20 and 30 from the goal.
 """
+
 import collections
 import sys
 
@@ -38,9 +39,11 @@ def greedy_behaviour(actor, cfg, map_name: str) -> str:
     stuck = [i for i in fails if len({tuple(p.tolist()) for p in pos[i, -20:]}) == 1]
     stuck_act = collections.Counter(ACTIONS[int(act[i, -1])] for i in stuck)
     stuck_cells = collections.Counter(tuple(pos[i, -1].tolist()) for i in stuck)
-    return (f"  greedy: success {float(success.float().mean()):.3f} (64 grids); {len(stuck)} of {len(fails)} failed "
-            f"episodes sit in one cell for their last 20 steps, action there {dict(stuck_act)}; "
-            f"most common cells {stuck_cells.most_common(4)}")
+    return (
+        f"  greedy: success {float(success.float().mean()):.3f} (64 grids); {len(stuck)} of {len(fails)} failed "
+        f"episodes sit in one cell for their last 20 steps, action there {dict(stuck_act)}; "
+        f"most common cells {stuck_cells.most_common(4)}"
+    )
 
 
 def q_by_distance(actor, cfg, map_name: str) -> str:
@@ -67,12 +70,16 @@ def q_by_distance(actor, cfg, map_name: str) -> str:
             m = d_here == k
             if m.any():
                 by_d[k].append(torch.stack([top2[m, 0], top2[m, 0] - top2[m, 1]], -1))
-    lines = [f"  argmax_a Q(s, a) is a shortest-path move in {n_opt / n_all:.2f} of (cell, goal) pairs "
-             f"(a uniform random action: about 0.34)"]
+    lines = [
+        f"  argmax_a Q(s, a) is a shortest-path move in {n_opt / n_all:.2f} of (cell, goal) pairs "
+        f"(a uniform random action: about 0.34)"
+    ]
     for k in DISTANCES:
         if by_d[k]:
             v = torch.cat(by_d[k])
-            lines.append(f"  distance {k:2d}: mean max_a Q {float(v[:, 0].mean()):8.2f}, mean action gap {float(v[:, 1].mean()):.3f} ({len(v)} pairs)")
+            lines.append(
+                f"  distance {k:2d}: mean max_a Q {float(v[:, 0].mean()):8.2f}, mean action gap {float(v[:, 1].mean()):.3f} ({len(v)} pairs)"
+            )
     return "\n".join(lines)
 
 
@@ -83,8 +90,10 @@ def main(runs: list[str]) -> None:
         env = make_env(map_name, 1, int(cfg.max_steps), 0, "sparse", coords=cfg.coords)
         actor = make_qnet(cfg, env.action_spec)
         actor.load_state_dict(torch.load(f"{run}/policy.pt"))
-        print(f"{run}: phase {cfg.phase}, map {map_name}, reward {cfg.reward.name}, coords {cfg.coords}, "
-              f"gamma {cfg.dqn.gamma}, {cfg.total_frames} frames")
+        print(
+            f"{run}: phase {cfg.phase}, map {map_name}, reward {cfg.reward.name}, coords {cfg.coords}, "
+            f"gamma {cfg.dqn.gamma}, {cfg.total_frames} frames"
+        )
         print(greedy_behaviour(actor, cfg, map_name))
         print(q_by_distance(actor, cfg, map_name))
 

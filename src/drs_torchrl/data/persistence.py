@@ -7,6 +7,7 @@ memory to write it); :func:`load_buffer` refills an empty buffer of the same lay
 restored buffer holds the same transitions in the same age order and overwrites the oldest first.
 It checks the free space first: a memory map written past the end of a full disk faults (SIGBUS).
 """
+
 from __future__ import annotations
 
 import json
@@ -83,8 +84,12 @@ def dump_buffer(rb: ReplayBuffer, path: str | Path) -> dict:
     path.mkdir(parents=True, exist_ok=True)
     for i, part in enumerate(parts):
         part.memmap(path / f"part{i}", num_threads=0)
-    meta = {"parts": len(parts), "len": len(rb), "capacity": rb.storage.max_size,
-            "write_count": int(getattr(rb._writer, "_write_count", len(rb)))}
+    meta = {
+        "parts": len(parts),
+        "len": len(rb),
+        "capacity": rb.storage.max_size,
+        "write_count": int(getattr(rb._writer, "_write_count", len(rb))),
+    }
     (path / "meta.json").write_text(json.dumps(meta))
     sampler_state = rb._sampler.state_dict() if hasattr(rb._sampler, "state_dict") else {}
     if sampler_state and not hasattr(rb._sampler, "num_stages"):  # StageSampler is rebuilt by extend
@@ -101,7 +106,9 @@ def load_buffer(rb: ReplayBuffer, path: str | Path) -> dict:
     if len(rb):
         raise ValueError("load_buffer needs an empty buffer")
     if meta["len"] > rb.storage.max_size:
-        raise ValueError(f"the saved buffer holds {meta['len']} transitions, more than this buffer's capacity {rb.storage.max_size}")
+        raise ValueError(
+            f"the saved buffer holds {meta['len']} transitions, more than this buffer's capacity {rb.storage.max_size}"
+        )
     for i in range(meta["parts"]):
         rb.extend(load_memmap_checked(path / f"part{i}"))  # copied page by page from the memory map
     if (path / "sampler.pt").is_file():

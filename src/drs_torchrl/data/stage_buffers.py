@@ -12,6 +12,7 @@ Filing rules (the authors' public implementation): a failed trajectory (top stag
 right after the last step at which it was at stage ``j``; a successful one and every demonstration
 go whole into the top buffer ``N``.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -304,7 +305,9 @@ class StageBuffers(ReplayBuffer):
     ):
         size = (int(num_stages) + 1) * int(capacity)  # lazily allocated: untouched slots cost no memory
         storage = LazyMemmapStorage(size, scratch_dir=scratch_dir) if scratch_dir else LazyTensorStorage(size)
-        super().__init__(storage=storage, sampler=StageSampler(num_stages), writer=StageRingWriter(num_stages, capacity))
+        super().__init__(
+            storage=storage, sampler=StageSampler(num_stages), writer=StageRingWriter(num_stages, capacity)
+        )
         self.disc_batch_size = int(batch_size)
         self.num_stages = int(num_stages)
         self.keys = list(dict.fromkeys([*keys, stage_key]))
@@ -334,7 +337,9 @@ class StageBuffers(ReplayBuffer):
         """
         states = trajectory.get("next") if "next" in trajectory.keys() else trajectory
         if states.batch_dims != 1:
-            raise ValueError(f"add_trajectory expects one trajectory with batch shape (T,), got {tuple(states.batch_size)}")
+            raise ValueError(
+                f"add_trajectory expects one trajectory with batch shape (T,), got {tuple(states.batch_size)}"
+            )
         stages = states.get(self.stage_key).reshape(-1)
         top = self.num_stages if demo else trajectory_stage(stages)
         keep = states.shape[0] if demo else truncate_failed(stages, self.num_stages)
@@ -369,7 +374,9 @@ class StageBuffers(ReplayBuffer):
     def dumps(self, path):
         """Write the buffers to ``path`` (TorchRL's on-disk format, memory-mapped storage)."""
         super().dumps(path)
-        torch.save({"episodes_per_stage": torch.from_numpy(self.episodes_per_stage.copy())}, Path(path) / "stage_buffers.pt")
+        torch.save(
+            {"episodes_per_stage": torch.from_numpy(self.episodes_per_stage.copy())}, Path(path) / "stage_buffers.pt"
+        )
 
     def loads(self, path):
         super().loads(path)

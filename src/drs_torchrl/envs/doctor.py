@@ -5,6 +5,7 @@ asks interactively on stdin before downloading a missing asset (which dies with 
 batch job). Both are checked here first, so a run fails at once with a message naming the fix.
 ``python -m drs_torchrl.envs.doctor`` (or ``drs-doctor``) runs the checks and steps PickCube once.
 """
+
 from __future__ import annotations
 
 import functools
@@ -92,7 +93,9 @@ def missing_assets(env_id: str, env_kwargs: dict | None = None) -> list[str]:
     needed: list[str] = []
     for group in _asset_groups(env_id, env_kwargs):
         if env_id in _SPLIT_ASSETS and group == _SPLIT_ASSETS[env_id][0] and _SPLIT_ASSETS[env_id][1]:
-            models = [m for v in (env_kwargs or {}).get("variants") or [env_kwargs or {}] for m in v.get("model_ids") or []]
+            models = [
+                m for v in (env_kwargs or {}).get("variants") or [env_kwargs or {}] for m in v.get("model_ids") or []
+            ]
             if models:
                 needed += [_SPLIT_ASSETS[env_id][1].format(m) for m in models]
                 continue

@@ -1,4 +1,5 @@
 """Build the TorchRL env of a task family variant: ManiSkill env + stage labelling (+ reward)."""
+
 from __future__ import annotations
 
 import functools
@@ -56,12 +57,20 @@ def make_family_env(
     )
     if family.task_observation_key:
         kwargs["task_observation_key"] = family.task_observation_key
-    gpu = sim_backend in ("physx_cuda", "cuda", "gpu") or (sim_backend == "auto" and num_envs > 1 and torch.cuda.is_available())
+    gpu = sim_backend in ("physx_cuda", "cuda", "gpu") or (
+        sim_backend == "auto" and num_envs > 1 and torch.cuda.is_available()
+    )
     if family.backend == "gymnasium":  # e.g. MuJoCo HalfCheetah (Appendix G): TorchRL's GymWrapper
         from drs_torchrl.envs.gym_family import make_gym_family_base
 
-        base = make_gym_family_base(family, kwargs.pop("env_kwargs"), num_envs=num_envs, cpu_batching=cpu_batching,
-                                    sim_backend=sim_backend, **kwargs)
+        base = make_gym_family_base(
+            family,
+            kwargs.pop("env_kwargs"),
+            num_envs=num_envs,
+            cpu_batching=cpu_batching,
+            sim_backend=sim_backend,
+            **kwargs,
+        )
     elif num_envs > 1 and not gpu:
         # several CPU simulators: one ManiSkill env per TorchRL sub-env
         if cpu_batching == "parallel":
@@ -71,11 +80,16 @@ def make_family_env(
             make_one = functools.partial(ManiSkillEnv, env_id, family.all_info_keys, sim_backend="physx_cpu", **kwargs)
             base = SerialEnv(num_envs, make_one)
     else:
-        base = ManiSkillEnv(env_id, family.all_info_keys, num_envs=num_envs, sim_backend=sim_backend,
-                            render_mode=render_mode, **kwargs)
+        base = ManiSkillEnv(
+            env_id, family.all_info_keys, num_envs=num_envs, sim_backend=sim_backend, render_mode=render_mode, **kwargs
+        )
     env = TransformedEnv(base, StageIndicator(family.stage_keys))
     if semi_sparse_reward:
-        env.append_transform(SemiSparseReward(family.num_stages, -family.num_stages if semi_sparse_offset is None else semi_sparse_offset))
+        env.append_transform(
+            SemiSparseReward(
+                family.num_stages, -family.num_stages if semi_sparse_offset is None else semi_sparse_offset
+            )
+        )
     if reward_offset:
         env.append_transform(RewardScaling(loc=float(reward_offset), scale=1.0))
     for t in transforms:

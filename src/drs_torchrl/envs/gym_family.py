@@ -18,6 +18,7 @@ A family variant's keyword arguments may hold two parameters that these wrappers
 ``family.extra["success_return"]``); every other one goes to ``gymnasium.make`` (e.g. HalfCheetah's
 ``ctrl_cost_weight``).
 """
+
 from __future__ import annotations
 
 import functools
@@ -63,7 +64,7 @@ class JointDampingScale(gym.Wrapper):
         for name, factor in scale.items():
             j = names.index(name)
             adr, n = int(model.jnt_dofadr[j]), _joint_dofs(int(model.jnt_type[j]))
-            model.dof_damping[adr:adr + n] = self.original_damping[adr:adr + n] * float(factor)
+            model.dof_damping[adr : adr + n] = self.original_damping[adr : adr + n] * float(factor)
 
     @property
     def damping(self) -> np.ndarray:
@@ -87,12 +88,16 @@ class ReturnThresholdSuccess(gym.Wrapper):
     def __init__(self, env: gym.Env, threshold: float, *, success_key: str = "success", reward_mode: str = "dense"):
         super().__init__(env)
         if reward_mode not in REWARD_MODES:
-            raise GymFamilyError(f"reward_mode must be one of {REWARD_MODES} for a Gymnasium family, got {reward_mode!r}")
+            raise GymFamilyError(
+                f"reward_mode must be one of {REWARD_MODES} for a Gymnasium family, got {reward_mode!r}"
+            )
         self.threshold, self.success_key, self.reward_mode = float(threshold), success_key, reward_mode
         space = env.observation_space
         if not isinstance(space, gym.spaces.Box) or len(space.shape) != 1:
             raise GymFamilyError(f"expected a flat Box observation, got {space}")
-        self.observation_space = gym.spaces.Box(space.low.astype(np.float32), space.high.astype(np.float32), dtype=np.float32)
+        self.observation_space = gym.spaces.Box(
+            space.low.astype(np.float32), space.high.astype(np.float32), dtype=np.float32
+        )
         self._return, self._success = 0.0, False
 
     def _info(self, info: dict) -> dict:
@@ -144,13 +149,20 @@ def _mujoco_warning(msg: str) -> None:
         warnings.warn(f"MuJoCo: {msg}", RuntimeWarning, stacklevel=2)
 
 
-def make_gym_env(family: TaskFamily, env_kwargs: Mapping | None = None, *, reward_mode: str = "dense",
-                 max_episode_steps: int | None = None) -> gym.Env:
+def make_gym_env(
+    family: TaskFamily,
+    env_kwargs: Mapping | None = None,
+    *,
+    reward_mode: str = "dense",
+    max_episode_steps: int | None = None,
+) -> gym.Env:
     """The wrapped Gymnasium env of one variant (variant kwargs as from ``family.variant_kwargs``)."""
     make_kwargs, scale, threshold = split_variant_kwargs(family, env_kwargs or {})
     _route_mujoco_warnings()
     try:
-        env = gym.make(family.env_id, max_episode_steps=int(max_episode_steps or family.max_episode_steps), **make_kwargs)
+        env = gym.make(
+            family.env_id, max_episode_steps=int(max_episode_steps or family.max_episode_steps), **make_kwargs
+        )
     except gym.error.DependencyNotInstalled as exc:
         raise GymFamilyError(
             f"{family.env_id} needs MuJoCo: pip install 'drs-torchrl[locomotion]' (or bin/setup.sh). ({exc})"
@@ -160,11 +172,18 @@ def make_gym_env(family: TaskFamily, env_kwargs: Mapping | None = None, *, rewar
     return ReturnThresholdSuccess(env, threshold, success_key=family.stage_keys[-1], reward_mode=reward_mode)
 
 
-def make_torchrl_env(family: TaskFamily, env_kwargs: Mapping | None = None, *, reward_mode: str = "dense",
-                     max_episode_steps: int | None = None, device: str | torch.device = "cpu") -> GymWrapper:
+def make_torchrl_env(
+    family: TaskFamily,
+    env_kwargs: Mapping | None = None,
+    *,
+    reward_mode: str = "dense",
+    max_episode_steps: int | None = None,
+    device: str | torch.device = "cpu",
+) -> GymWrapper:
     """One variant as a TorchRL :class:`~torchrl.envs.GymWrapper`, indicators read from ``info``."""
-    env = GymWrapper(make_gym_env(family, env_kwargs, reward_mode=reward_mode, max_episode_steps=max_episode_steps),
-                     device=device)
+    env = GymWrapper(
+        make_gym_env(family, env_kwargs, reward_mode=reward_mode, max_episode_steps=max_episode_steps), device=device
+    )
     keys = list(family.all_info_keys)
     spec = Composite({k: Categorical(2, shape=(1,), dtype=torch.bool) for k in keys}, shape=[])
     env.set_info_dict_reader(default_info_dict_reader(keys, spec=spec))
@@ -179,20 +198,32 @@ def _worker_env(*args, **kwargs) -> GymWrapper:
     return make_torchrl_env(*args, **kwargs)
 
 
-def make_gym_family_base(family: TaskFamily, env_kwargs: Mapping | None, *, reward_mode: str = "dense",
-                         max_episode_steps: int | None = None, num_envs: int = 1, cpu_batching: str = "serial",
-                         sim_backend: str = "physx_cpu", control_mode: str | None = None) -> EnvBase:
+def make_gym_family_base(
+    family: TaskFamily,
+    env_kwargs: Mapping | None,
+    *,
+    reward_mode: str = "dense",
+    max_episode_steps: int | None = None,
+    num_envs: int = 1,
+    cpu_batching: str = "serial",
+    sim_backend: str = "physx_cpu",
+    control_mode: str | None = None,
+) -> EnvBase:
     """The base env of ``make_family_env`` for a Gymnasium family (before the stage transform).
 
     Gymnasium envs simulate on the CPU, one per TorchRL sub-env: ``num_envs > 1`` batches them with
     :class:`~torchrl.envs.SerialEnv` (``cpu_batching="serial"``) or :class:`~torchrl.envs.ParallelEnv`.
     """
     if sim_backend not in ("physx_cpu", "cpu", "auto"):
-        raise GymFamilyError(f"family {family.name!r} is a Gymnasium (MuJoCo) env: it runs on the CPU; "
-                             f"sim_backend={sim_backend!r} does not apply (leave env.sim_backend=physx_cpu)")
+        raise GymFamilyError(
+            f"family {family.name!r} is a Gymnasium (MuJoCo) env: it runs on the CPU; "
+            f"sim_backend={sim_backend!r} does not apply (leave env.sim_backend=physx_cpu)"
+        )
     if control_mode is not None:
-        raise GymFamilyError(f"family {family.name!r} is a Gymnasium env without controller choices; "
-                             f"leave env.control_mode=null (got {control_mode!r})")
+        raise GymFamilyError(
+            f"family {family.name!r} is a Gymnasium env without controller choices; "
+            f"leave env.control_mode=null (got {control_mode!r})"
+        )
     if reward_mode not in REWARD_MODES:
         raise GymFamilyError(f"reward_mode must be one of {REWARD_MODES} for a Gymnasium family, got {reward_mode!r}")
     kw = {"reward_mode": reward_mode, "max_episode_steps": max_episode_steps}

@@ -19,6 +19,7 @@ episode's variant as ``"variant_index"`` (``int64``, ``(*batch, 1)``; names in `
 A family whose reward must not depend on the robot (``cross_robot``) also gets the task env's
 robot-agnostic ``task_observation()`` under ``task_observation_key``.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -89,6 +90,7 @@ class ManiSkillEnv(EnvBase):
             )
         import mani_skill.envs  # noqa: F401  (registers the environments)
         import drs_torchrl.envs.variants  # noqa: F401  (registers drs-torchrl's task variants)
+
         ensure_env_ready(env_id, env_kwargs or {})
 
         kwargs = dict(env_kwargs or {})
@@ -165,12 +167,18 @@ class ManiSkillEnv(EnvBase):
         for k in self.info_keys:
             obs[k] = Categorical(2, shape=(*b, 1), dtype=torch.bool, device=self.device)
         if self.variant_names:
-            obs["variant_index"] = Categorical(len(self.variant_names), shape=(*b, 1), dtype=torch.int64, device=self.device)
+            obs["variant_index"] = Categorical(
+                len(self.variant_names), shape=(*b, 1), dtype=torch.int64, device=self.device
+            )
         if self.task_observation_key:
             task_obs = getattr(self._gym_env.unwrapped, "task_observation", None)
             if task_obs is None:
-                raise TypeError(f"{self.env_id} has no task_observation(); task_observation_key needs one of drs-torchrl's task envs")
-            obs[self.task_observation_key] = Unbounded(shape=(*b, task_obs().shape[-1]), dtype=torch.float32, device=self.device)
+                raise TypeError(
+                    f"{self.env_id} has no task_observation(); task_observation_key needs one of drs-torchrl's task envs"
+                )
+            obs[self.task_observation_key] = Unbounded(
+                shape=(*b, task_obs().shape[-1]), dtype=torch.float32, device=self.device
+            )
         self.observation_spec = Composite(obs, shape=b, device=self.device)
         self.action_spec = Bounded(
             low=torch.tensor(np.broadcast_to(act_space.low, act_space.shape), dtype=torch.float32),
@@ -202,9 +210,13 @@ class ManiSkillEnv(EnvBase):
             out[k] = v.to(self.device)
         u = self._gym_env.unwrapped
         if self.variant_names:
-            out["variant_index"] = u.variant_index.to(torch.int64).reshape(*self.batch_size, 1).to(self.device, copy=True)
+            out["variant_index"] = (
+                u.variant_index.to(torch.int64).reshape(*self.batch_size, 1).to(self.device, copy=True)
+            )
         if self.task_observation_key:
-            out[self.task_observation_key] = u.task_observation().to(torch.float32).reshape(*self.batch_size, -1).to(self.device)
+            out[self.task_observation_key] = (
+                u.task_observation().to(torch.float32).reshape(*self.batch_size, -1).to(self.device)
+            )
 
     # ------------------------------------------------------------------ API
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:

@@ -28,6 +28,7 @@ after ``max_steps`` steps.
 The env is batched: ``num_envs`` independent grids step together as tensors, with partial resets
 (``"_reset"``) for the envs that finished, as TorchRL's collectors send them.
 """
+
 from __future__ import annotations
 
 import functools
@@ -144,8 +145,16 @@ class ThreeRoomMaze(EnvBase):
 
     _has_dynamic_specs = False
 
-    def __init__(self, map_name: str = "train", num_envs: int = 16, max_steps: int = 100, seed: int | None = None,
-                 coords: str = "onehot", dense_coef: float = 0.0, device="cpu"):
+    def __init__(
+        self,
+        map_name: str = "train",
+        num_envs: int = 16,
+        max_steps: int = 100,
+        seed: int | None = None,
+        coords: str = "onehot",
+        dense_coef: float = 0.0,
+        device="cpu",
+    ):
         super().__init__(batch_size=torch.Size([num_envs]), device=device)
         if max_steps < 1:
             raise ValueError("max_steps must be >= 1")
@@ -172,7 +181,9 @@ class ThreeRoomMaze(EnvBase):
             self._dist_max = float(self._dist.max())
         self.t = torch.zeros(n, dtype=torch.long)
         self.observation_spec = Composite(
-            observation=Bounded(-1.0 if coords == "relative" else 0.0, 1.0, shape=(n, self.obs_dim), dtype=torch.float32),
+            observation=Bounded(
+                -1.0 if coords == "relative" else 0.0, 1.0, shape=(n, self.obs_dim), dtype=torch.float32
+            ),
             success=Binary(n=1, shape=(n, 1), dtype=torch.bool),
             shape=(n,),
         )
@@ -202,7 +213,13 @@ class ThreeRoomMaze(EnvBase):
             self.t[mask] = 0
         false = torch.zeros(n, 1, dtype=torch.bool)
         return TensorDict(
-            {"observation": self._obs(), "success": false.clone(), "done": false.clone(), "terminated": false.clone(), "truncated": false.clone()},
+            {
+                "observation": self._obs(),
+                "success": false.clone(),
+                "done": false.clone(),
+                "terminated": false.clone(),
+                "truncated": false.clone(),
+            },
             batch_size=self.batch_size,
         )
 
@@ -236,8 +253,10 @@ class ThreeRoomMaze(EnvBase):
         return _shortest_distances(self.map_name).clone()
 
     def __repr__(self) -> str:
-        return (f"{type(self).__name__}(map={self.map_name!r}, gates={GATES[self.map_name]}, num_envs={self.num_envs}, "
-                f"max_steps={self.max_steps}, coords={self.coords!r})")
+        return (
+            f"{type(self).__name__}(map={self.map_name!r}, gates={GATES[self.map_name]}, num_envs={self.num_envs}, "
+            f"max_steps={self.max_steps}, coords={self.coords!r})"
+        )
 
 
 @functools.lru_cache(maxsize=None)
@@ -263,4 +282,3 @@ def _shortest_distances(map_name: str) -> torch.Tensor:
         out.append(d)
     out = torch.tensor(out, dtype=torch.long)
     return out
-

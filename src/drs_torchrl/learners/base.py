@@ -9,6 +9,7 @@ the current reward modules whenever the RL algorithm samples (Algorithm 1, line 
 
 Static rewards (sparse, semi-sparse, dense) need no learner: they are transforms of the env.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -43,8 +44,13 @@ class RewardLearner:
     name = "learned"
     reward: Transform
 
-    def __init__(self, *, device: torch.device | str = "cpu", autocast: Callable[[], Any] | None = None,
-                 step_fn: Callable[[torch.Tensor, Sequence[torch.optim.Optimizer]], None] = plain_step):
+    def __init__(
+        self,
+        *,
+        device: torch.device | str = "cpu",
+        autocast: Callable[[], Any] | None = None,
+        step_fn: Callable[[torch.Tensor, Sequence[torch.optim.Optimizer]], None] = plain_step,
+    ):
         self.device = torch.device(device)
         self._autocast = autocast or contextlib.nullcontext
         self._step_fn = step_fn
@@ -83,8 +89,12 @@ class RewardLearner:
         return {}
 
     def state_dict(self) -> dict[str, Any]:
-        return {"reward": self.reward.state_dict(), "updates": self.updates, "owed_steps": self._owed_steps,
-                "optimizers": {k: o.state_dict() for k, o in self.optimizers().items()}}
+        return {
+            "reward": self.reward.state_dict(),
+            "updates": self.updates,
+            "owed_steps": self._owed_steps,
+            "optimizers": {k: o.state_dict() for k, o in self.optimizers().items()},
+        }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.reward.load_state_dict(state["reward"])

@@ -10,10 +10,10 @@
 
 Each trains the one classifier of a :class:`~drs_torchrl.transforms.ClassifierReward` in place.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -43,8 +43,17 @@ def _buffer(capacity: int) -> ReplayBuffer:
 class _TwoSetClassifier(RewardLearner):
     """A classifier of positives vs negatives held in two TorchRL replay buffers."""
 
-    def __init__(self, reward: ClassifierReward, *, capacity: int = 1_000_000, batch_size: int = 256,
-                 lr: float = 3e-4, fused: bool = False, updates_per_rl_update: float = 1, **kw):
+    def __init__(
+        self,
+        reward: ClassifierReward,
+        *,
+        capacity: int = 1_000_000,
+        batch_size: int = 256,
+        lr: float = 3e-4,
+        fused: bool = False,
+        updates_per_rl_update: float = 1,
+        **kw,
+    ):
         super().__init__(**kw)
         self.reward = reward
         self.batch_size = int(batch_size)
@@ -84,7 +93,9 @@ class _TwoSetClassifier(RewardLearner):
     def load_buffers(self, directory: Path) -> None:
         for name in ("positives", "negatives"):
             if (Path(directory) / f"classifier_{name}").exists():
-                getattr(self, name).empty()  # e.g. ORIL's demonstrations, added again by the constructor, are in the snapshot
+                getattr(
+                    self, name
+                ).empty()  # e.g. ORIL's demonstrations, added again by the constructor, are in the snapshot
                 load_buffer(getattr(self, name), Path(directory) / f"classifier_{name}")
 
 
@@ -93,8 +104,14 @@ class SuccessClassifierLearner(_TwoSetClassifier):
 
     name = "vice_raq"
 
-    def __init__(self, reward: ClassifierReward, *, success_key: str = "success",
-                 success_states: TensorDictBase | None = None, **kw):
+    def __init__(
+        self,
+        reward: ClassifierReward,
+        *,
+        success_key: str = "success",
+        success_states: TensorDictBase | None = None,
+        **kw,
+    ):
         """``success_states``: optional success states to start the positives with (e.g. the final
         states of demonstrations, given to every learned reward alike)."""
         super().__init__(reward, **kw)
@@ -128,8 +145,15 @@ class OfflineClassifierLearner(_TwoSetClassifier):
 
     name = "oril"
 
-    def __init__(self, reward: ClassifierReward, *, demos: list[TensorDictBase], random_episodes: int = 100,
-                 offline_updates: int = 2000, **kw):
+    def __init__(
+        self,
+        reward: ClassifierReward,
+        *,
+        demos: list[TensorDictBase],
+        random_episodes: int = 100,
+        offline_updates: int = 2000,
+        **kw,
+    ):
         super().__init__(reward, **kw)
         if not demos:
             raise ValueError("reward=oril learns from demonstrations: give demos.path=DIR (drs-demos writes them)")
@@ -182,9 +206,18 @@ class DemoDiscriminatorLearner(RewardLearner):
 
     name = "gail"
 
-    def __init__(self, reward: ClassifierReward, *, demos: list[TensorDictBase], batch_size: int = 256,
-                 lr: float = 3e-4, fused: bool = False, updates_per_rl_update: float = 1, grad_penalty: bool = False,
-                 **kw):
+    def __init__(
+        self,
+        reward: ClassifierReward,
+        *,
+        demos: list[TensorDictBase],
+        batch_size: int = 256,
+        lr: float = 3e-4,
+        fused: bool = False,
+        updates_per_rl_update: float = 1,
+        grad_penalty: bool = False,
+        **kw,
+    ):
         super().__init__(**kw)
         if not demos:
             raise ValueError("reward=gail imitates demonstrations: give demos.path=DIR (drs-demos writes them)")
@@ -195,7 +228,8 @@ class DemoDiscriminatorLearner(RewardLearner):
                 raise ValueError(
                     f"reward=gail reads (s, a), but the demonstrations lack {lacking} (recorded before actions were "
                     "kept, or by a motion planner in another controller); record them with drs-demos --from-policy, "
-                    "or learn on states only with reward.use_action=false")
+                    "or learn on states only with reward.use_action=false"
+                )
             self.demo_x = torch.cat([reward.state_features(ep.get("state")) for ep in demos], 0)
             self.demo_a = torch.cat([ep.get("action").to(torch.float32) for ep in demos], 0)
         else:
@@ -227,16 +261,29 @@ class DemoDiscriminatorLearner(RewardLearner):
             B = self.batch_size
             i = torch.randint(self.demo_x.shape[0], (B,))
             agent_x, agent_a = self._agent(B)
-            batch = TensorDict({"observation": self.demo_x[i], "action": self.demo_a[i],
-                                "collector_observation": agent_x, "collector_action": agent_a}, batch_size=[B]).to(self.device)
+            batch = TensorDict(
+                {
+                    "observation": self.demo_x[i],
+                    "action": self.demo_a[i],
+                    "collector_observation": agent_x,
+                    "collector_action": agent_a,
+                },
+                batch_size=[B],
+            ).to(self.device)
             with self._autocast():
                 out = self.loss(batch)
             loss = out["loss"] + (out["gp_loss"] if "gp_loss" in out.keys() else 0.0)
             self._train_step(loss, (self.optim,))
             self.reward.classifier.trained.fill_(True)
             with torch.no_grad():  # one pass over both sides, for the logged accuracy
-                z = self.reward.classifier(torch.cat([torch.cat([batch["observation"], batch["action"]], -1),
-                                                      torch.cat([batch["collector_observation"], batch["collector_action"]], -1)]))
+                z = self.reward.classifier(
+                    torch.cat(
+                        [
+                            torch.cat([batch["observation"], batch["action"]], -1),
+                            torch.cat([batch["collector_observation"], batch["collector_action"]], -1),
+                        ]
+                    )
+                )
             acc = 0.5 * ((z[:B] > 0).float().mean() + (z[B:] <= 0).float().mean())
             out = TensorDict({"loss": loss.detach(), "accuracy": acc}, batch_size=[])
         return out

@@ -1,4 +1,5 @@
 """DrS's reward learning (Sec. 4, Algorithm 1): stage buffers, one discriminator per stage, demos."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -36,16 +37,39 @@ class DrSLearner(RewardLearner):
 
     name = "drs"
 
-    def __init__(self, reward: DrSReward, *, capacity: int = 1_000_000, batch_size: int = 256, scratch_dir=None,
-                 lr: float = 3e-4, fused: bool = False, updates_per_rl_update: float = 1,
-                 early_stop_threshold: float | None = 0.95, window: int = 100, latch: bool = True,
-                 demos: list[TensorDictBase] | None = None, file_successes: bool = True, **kw):
+    def __init__(
+        self,
+        reward: DrSReward,
+        *,
+        capacity: int = 1_000_000,
+        batch_size: int = 256,
+        scratch_dir=None,
+        lr: float = 3e-4,
+        fused: bool = False,
+        updates_per_rl_update: float = 1,
+        early_stop_threshold: float | None = 0.95,
+        window: int = 100,
+        latch: bool = True,
+        demos: list[TensorDictBase] | None = None,
+        file_successes: bool = True,
+        **kw,
+    ):
         super().__init__(**kw)
         self.reward = reward
-        self.stage_buffers = StageBuffers(reward.num_stages, reward.reward_in_keys, capacity=int(capacity),
-                                          batch_size=int(batch_size), scratch_dir=scratch_dir)
-        self.loss = DiscriminatorLoss(reward.discriminators, reward.reward_in_keys, early_stop_threshold=early_stop_threshold,
-                                      window=int(window), latch=bool(latch))
+        self.stage_buffers = StageBuffers(
+            reward.num_stages,
+            reward.reward_in_keys,
+            capacity=int(capacity),
+            batch_size=int(batch_size),
+            scratch_dir=scratch_dir,
+        )
+        self.loss = DiscriminatorLoss(
+            reward.discriminators,
+            reward.reward_in_keys,
+            early_stop_threshold=early_stop_threshold,
+            window=int(window),
+            latch=bool(latch),
+        )
         self.optim = torch.optim.Adam(reward.discriminators.parameters(), lr=float(lr), fused=bool(fused))
         self._set_steps_per_rl_update(updates_per_rl_update)
         self.num_demos = 0
@@ -83,15 +107,20 @@ class DrSLearner(RewardLearner):
         return row
 
     def summary(self) -> dict[str, Any]:
-        return {"stage_buffer_transitions": self.stage_buffers.stage_counts().tolist(),
-                "stage_buffer_episodes": self.stage_buffers.episodes_per_stage.tolist()}
+        return {
+            "stage_buffer_transitions": self.stage_buffers.stage_counts().tolist(),
+            "stage_buffer_episodes": self.stage_buffers.episodes_per_stage.tolist(),
+        }
 
     def optimizers(self):
         return {"discriminator": self.optim}
 
     def state_dict(self) -> dict[str, Any]:
-        return {**super().state_dict(), "disc_loss": self.loss.state_dict(),
-                "stage_buffer_episodes": self.stage_buffers.episodes_per_stage.tolist()}
+        return {
+            **super().state_dict(),
+            "disc_loss": self.loss.state_dict(),
+            "stage_buffer_episodes": self.stage_buffers.episodes_per_stage.tolist(),
+        }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         super().load_state_dict(state)

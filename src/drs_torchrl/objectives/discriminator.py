@@ -5,6 +5,7 @@ beyond stage k" (positives, stage buffers ``k+1..N``) vs "from one that stopped 
 (negatives, buffers ``0..k``). Training of discriminator ``k`` pauses while the rolling rate of
 training episodes that get beyond stage ``k`` is above a threshold (0.95), as in Sec. 4.3.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -92,10 +93,16 @@ class DiscriminatorLoss(LossModule):
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         N = self.num_stages
         if tensordict.shape[:2] != torch.Size([N, 2]):
-            raise ValueError(f"expected a (N={N}, 2, B) batch from StageBuffers.sample_discriminator_batch, got {tuple(tensordict.shape)}")
+            raise ValueError(
+                f"expected a (N={N}, 2, B) batch from StageBuffers.sample_discriminator_batch, got {tuple(tensordict.shape)}"
+            )
         x = torch.cat([tensordict.get(k).to(torch.float32) for k in self.in_keys], dim=-1)
         y = tensordict.get(self.label_key).squeeze(-1).to(torch.float32)
-        valid = tensordict.get(self.valid_key).reshape(N, -1)[:, 0].to(torch.bool) if self.valid_key in tensordict.keys() else torch.ones(N, dtype=torch.bool)
+        valid = (
+            tensordict.get(self.valid_key).reshape(N, -1)[:, 0].to(torch.bool)
+            if self.valid_key in tensordict.keys()
+            else torch.ones(N, dtype=torch.bool)
+        )
         active = valid & self.training_mask().to(valid.device)
         out = {}
         total = x.new_zeros(())

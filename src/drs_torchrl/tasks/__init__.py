@@ -6,6 +6,7 @@ the reward's inputs, the train/test split) reads a :class:`TaskFamily` instead o
 tasks. ``get_family(name)`` looks one up; ``register_family`` adds one. Each family lives in its own
 module of this package (``tasks/pick_cube.py``...), imported at the bottom of this file.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -84,8 +85,10 @@ class TaskFamily:
             return self.train_variants
         if split == "test":
             if not self.test_variants:
-                raise KeyError(f"family {self.name!r} has no test variants; name some (env.test_variants=[...] for a "
-                               "family defined in config) or pick a variant with env.split=<variant>")
+                raise KeyError(
+                    f"family {self.name!r} has no test variants; name some (env.test_variants=[...] for a "
+                    "family defined in config) or pick a variant with env.split=<variant>"
+                )
             return self.test_variants
         if split not in self.variants:
             self.variant_kwargs(split)  # raises the KeyError naming the known variants
@@ -104,8 +107,10 @@ class TaskFamily:
         for key, default in (("env_id", self.env_id), ("control_mode", None)):
             values = [kw.pop(key, default) for kw in kwargs]
             if any(v != values[0] for v in values):
-                raise ValueError(f"family {self.name!r}: the variants of split {split!r} differ in {key} ({values}); "
-                                 "one env cannot draw among them per episode")
+                raise ValueError(
+                    f"family {self.name!r}: the variants of split {split!r} differ in {key} ({values}); "
+                    "one env cannot draw among them per episode"
+                )
             special[key] = values[0]
         if self.pooled:
             env_kwargs = {"variants": kwargs, "variant_names": list(names)}
@@ -155,7 +160,15 @@ def list_families(include_config: bool = False) -> list[str]:
 
 
 # env-config fields of a family defined entirely in config (conf/env/custom.yaml)
-CONFIG_FAMILY_FIELDS = ("env_id", "stage_keys", "info_keys", "reward_in_keys", "variants", "train_variants", "test_variants")
+CONFIG_FAMILY_FIELDS = (
+    "env_id",
+    "stage_keys",
+    "info_keys",
+    "reward_in_keys",
+    "variants",
+    "train_variants",
+    "test_variants",
+)
 
 
 def family_from_config(env_cfg) -> TaskFamily:
@@ -163,15 +176,20 @@ def family_from_config(env_cfg) -> TaskFamily:
     defines itself (``env=custom env.family=NAME env.env_id=... env.stage_keys=[...]``), which is
     registered under its name so that checkpoints and reuse find it."""
     if env_cfg.get("env_id") is None:
-        return with_task_observation(with_stages(get_family(env_cfg.family), env_cfg.get("stages")),
-                                     env_cfg.get("task_observation"))
+        return with_task_observation(
+            with_stages(get_family(env_cfg.family), env_cfg.get("stages")), env_cfg.get("task_observation")
+        )
     name = str(env_cfg.family)
     if name in _FAMILIES and not _FAMILIES[name].extra.get("from_config"):
-        raise ValueError(f"env.family={name!r} is a built-in family; give the family defined in config another name "
-                         f"(e.g. env.family=my_{name})")
+        raise ValueError(
+            f"env.family={name!r} is a built-in family; give the family defined in config another name "
+            f"(e.g. env.family=my_{name})"
+        )
+
     def _list(key):
         value = env_cfg.get(key)
         return tuple(str(v) for v in (value or ()))
+
     variants = {str(k): dict(v or {}) for k, v in (env_cfg.get("variants") or {"default": {}}).items()}
     train = _list("train_variants") or (next(iter(variants)),)
     try:
@@ -190,8 +208,12 @@ def family_from_config(env_cfg) -> TaskFamily:
             extra={"from_config": True},
         )
     except ValueError as exc:
-        raise ValueError(f"env=custom: {exc} (set env.stage_keys, env.variants, env.train_variants, env.test_variants)") from None
-    return with_task_observation(with_stages(register_family(family), env_cfg.get("stages")), env_cfg.get("task_observation"))
+        raise ValueError(
+            f"env=custom: {exc} (set env.stage_keys, env.variants, env.train_variants, env.test_variants)"
+        ) from None
+    return with_task_observation(
+        with_stages(register_family(family), env_cfg.get("stages")), env_cfg.get("task_observation")
+    )
 
 
 def with_stages(family: TaskFamily, stages) -> TaskFamily:
@@ -203,16 +225,26 @@ def with_stages(family: TaskFamily, stages) -> TaskFamily:
     stages = tuple(str(k) for k in stages)
     unknown = [k for k in stages if k not in family.stage_keys]
     if unknown:
-        raise ValueError(f"env.stages names {unknown}, which are not stage indicators of family {family.name!r} "
-                         f"(its stages: {list(family.stage_keys)})")
+        raise ValueError(
+            f"env.stages names {unknown}, which are not stage indicators of family {family.name!r} "
+            f"(its stages: {list(family.stage_keys)})"
+        )
     if stages[-1] != family.stage_keys[-1]:
-        raise ValueError(f"env.stages must end with the success indicator {family.stage_keys[-1]!r}, got {list(stages)}")
+        raise ValueError(
+            f"env.stages must end with the success indicator {family.stage_keys[-1]!r}, got {list(stages)}"
+        )
     if list(stages) != [k for k in family.stage_keys if k in stages] or len(set(stages)) != len(stages):
-        raise ValueError(f"env.stages must keep the family's order without repeats ({list(family.stage_keys)}), got {list(stages)}")
+        raise ValueError(
+            f"env.stages must keep the family's order without repeats ({list(family.stage_keys)}), got {list(stages)}"
+        )
     if stages == family.stage_keys:
         return family
-    return dataclasses.replace(family, stage_keys=stages, info_keys=family.all_info_keys,
-                               extra={**family.extra, "stage_subset_of": list(family.stage_keys)})
+    return dataclasses.replace(
+        family,
+        stage_keys=stages,
+        info_keys=family.all_info_keys,
+        extra={**family.extra, "stage_subset_of": list(family.stage_keys)},
+    )
 
 
 TASK_OBSERVATION_KEY = "task_observation"
@@ -228,8 +260,10 @@ def with_task_observation(family: TaskFamily, on) -> TaskFamily:
         return family
     if not family.extra.get("task_observation_groups"):  # the families whose env has a task_observation()
         have = [f.name for f in _FAMILIES.values() if f.extra.get("task_observation_groups") or f.task_observation_key]
-        raise ValueError(f"env.task_observation=true (or a reward that reads {TASK_OBSERVATION_KEY!r}): family "
-                         f"{family.name!r} has no task state; the families that have one: {sorted(have)}")
+        raise ValueError(
+            f"env.task_observation=true (or a reward that reads {TASK_OBSERVATION_KEY!r}): family "
+            f"{family.name!r} has no task state; the families that have one: {sorted(have)}"
+        )
     return dataclasses.replace(family, task_observation_key=TASK_OBSERVATION_KEY)
 
 

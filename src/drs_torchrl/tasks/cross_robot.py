@@ -13,6 +13,7 @@ workspace; not in the test split because its action and observation sizes differ
 one split's variants must share them). Each robot works in ManiSkill's PickCube workspace for it.
 Stage indicators as ``pick_and_place`` (Appendix A).
 """
+
 from drs_torchrl.tasks import TaskFamily, register_family
 
 
@@ -40,6 +41,9 @@ register_family(
         test_variants=("fetch_cube_2cm", "fetch_cube_1_75cm"),
         pooled=True,
         # ManiSkill's motion planner drives the Panda: demonstrations for the training split
-        extra={"demo_solver": "mani_skill.examples.motionplanning.panda.solutions.pick_cube:solve", "demo_settle_steps": 20},
+        extra={
+            "demo_solver": "mani_skill.examples.motionplanning.panda.solutions.pick_cube:solve",
+            "demo_settle_steps": 20,
+        },
     )
 )

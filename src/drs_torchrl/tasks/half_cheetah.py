@@ -13,6 +13,7 @@ end on success. The threshold is a variant parameter:
 ``+env.variant_overrides.success_return=100`` (or ``env.variant_overrides.success_return=...``
 with ``env=half_cheetah``, whose config lists it).
 """
+
 from drs_torchrl.tasks import TaskFamily, register_family
 
 FRONT_LEG_JOINTS = ("fthigh", "fshin", "ffoot")

@@ -13,10 +13,13 @@ Stage indicators (Appendix A and its listing of the authors' indicators): ``is_h
 ``success`` = open enough and the door static (< 0.1 m/s and < 1 rad/s; ``is_door_static``).
 Control: joint velocities of the arm and base, gripper position, as the paper.
 """
+
 from drs_torchrl.tasks import TaskFamily, register_family
 from drs_torchrl.tasks._assets import partnet_meta
 
-CABINETS = sorted((m for m, info in partnet_meta("cabinet_door").items() if int(info.get("num_target_links", 1)) >= 2), key=int)
+CABINETS = sorted(
+    (m for m, info in partnet_meta("cabinet_door").items() if int(info.get("num_target_links", 1)) >= 2), key=int
+)
 
 register_family(
     TaskFamily(

@@ -13,6 +13,7 @@ Stage indicators (Appendix A): ``is_grasped`` (both fingers touch the object wit
 ``goal_thresh``, robot static (joint speeds
 < 0.2 rad/s) and object static (< 3 cm/s; ``object_static_thresh``).
 """
+
 from drs_torchrl.tasks import TaskFamily, register_family
 from drs_torchrl.tasks.pick_cube import PANDA_PICK_OBSERVATION_GROUPS, PICK_TASK_OBSERVATION_GROUPS
 
@@ -48,7 +49,11 @@ register_family(
         train_variants=tuple(TRAIN_OBJECTS),
         test_variants=tuple(TEST_OBJECTS),
         pooled=True,
-        extra={"demo_solver": "mani_skill.examples.motionplanning.panda.solutions.pick_cube:solve", "demo_settle_steps": 20,
-               "observation_groups": PANDA_PICK_OBSERVATION_GROUPS, "task_observation_groups": PICK_TASK_OBSERVATION_GROUPS},
+        extra={
+            "demo_solver": "mani_skill.examples.motionplanning.panda.solutions.pick_cube:solve",
+            "demo_settle_steps": 20,
+            "observation_groups": PANDA_PICK_OBSERVATION_GROUPS,
+            "task_observation_groups": PICK_TASK_OBSERVATION_GROUPS,
+        },
     )
 )

@@ -3,19 +3,30 @@
 ``env.split=train`` draws the cube size of every episode from the training sizes (2 and 2.5 cm),
 ``env.split=test`` from the held-out ones (1.5 and 1.75 cm); a variant name fixes one size.
 """
+
 from drs_torchrl.tasks import TaskFamily, register_family
 
 # column ranges of ManiSkill's PickCube state observation with the Panda (42 numbers): the agent's qpos and
 # qvel, then the task's extras in ManiSkill's order; names the inputs in bin/probe_reward.py --swap-with
 PANDA_PICK_OBSERVATION_GROUPS = {
-    "arm joint positions": (0, 7), "finger joint positions": (7, 9), "joint velocities": (9, 18),
-    "is_grasped": (18, 19), "TCP pose": (19, 26), "goal position": (26, 29), "object pose": (29, 36),
-    "TCP to object": (36, 39), "object to goal": (39, 42),
+    "arm joint positions": (0, 7),
+    "finger joint positions": (7, 9),
+    "joint velocities": (9, 18),
+    "is_grasped": (18, 19),
+    "TCP pose": (19, 26),
+    "goal position": (26, 29),
+    "object pose": (29, 36),
+    "TCP to object": (36, 39),
+    "object to goal": (39, 42),
 }
 # and of PickObjectEnv.task_observation() (19 numbers, positions in the workspace frame)
 PICK_TASK_OBSERVATION_GROUPS = {
-    "object position": (0, 3), "object orientation": (3, 7), "goal position": (7, 10), "TCP position": (10, 13),
-    "TCP to object": (13, 16), "object to goal": (16, 19),
+    "object position": (0, 3),
+    "object orientation": (3, 7),
+    "goal position": (7, 10),
+    "TCP position": (10, 13),
+    "TCP to object": (13, 16),
+    "object to goal": (16, 19),
 }
 
 register_family(
@@ -35,7 +46,10 @@ register_family(
         train_variants=("cube_2cm", "cube_2_5cm"),
         test_variants=("cube_1_5cm", "cube_1_75cm"),
         pooled=True,
-        extra={"demo_solver": "mani_skill.examples.motionplanning.panda.solutions.pick_cube:solve",
-               "observation_groups": PANDA_PICK_OBSERVATION_GROUPS, "task_observation_groups": PICK_TASK_OBSERVATION_GROUPS},
+        extra={
+            "demo_solver": "mani_skill.examples.motionplanning.panda.solutions.pick_cube:solve",
+            "observation_groups": PANDA_PICK_OBSERVATION_GROUPS,
+            "task_observation_groups": PICK_TASK_OBSERVATION_GROUPS,
+        },
     )
 )

@@ -9,6 +9,7 @@ three quarters) are training objects; every episode loads one object of the spli
 Stage indicators (Appendix A): ``is_grasped``, ``is_obj_placed`` (2.5 cm; ``placed_thresh``, by default ``goal_thresh``),
 ``success`` = within ``goal_thresh``, robot static and object static (< 3 cm/s).
 """
+
 from drs_torchrl.tasks import TaskFamily, register_family
 
 register_family(

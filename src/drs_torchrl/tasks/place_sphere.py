@@ -5,6 +5,7 @@ Three stages from PlaceSphere's own ``evaluate``: ``is_obj_grasped``, ``is_obj_o
 ``success`` (in the bin, static, released). Training radii 2 and 1.5 cm, test radii 1.75 and
 1.25 cm, drawn per episode.
 """
+
 from drs_torchrl.tasks import TaskFamily, register_family
 
 register_family(

@@ -5,6 +5,7 @@ Three stages from StackCube's own ``evaluate``: ``is_cubeA_grasped``, ``is_cubeA
 ``success`` (on top, static, released). Training pairs (A, B): 2/2 cm and 1.75/2.5 cm; test pairs
 2.25/2.25 cm and 1.5/2.25 cm (half sizes), drawn per episode.
 """
+
 from drs_torchrl.tasks import TaskFamily, register_family
 
 

@@ -10,6 +10,7 @@ Stage indicators (Appendix A): ``is_handle_moving`` (the target joint turns towa
 than 0.01 rad/s, ``moving_thresh``) and ``success`` (the joint beyond 90% of its range, ManiSkill's).
 Control: end-effector delta pose and gripper position, as the paper.
 """
+
 from drs_torchrl.tasks import TaskFamily, register_family
 from drs_torchrl.tasks._assets import partnet_meta
 

@@ -15,6 +15,7 @@ Episode lengths are ManiSkill's per level (80, 150, 150, 150, 300 steps: ``LEVEL
 The episode's stage is the highest it reached (the stage buffers file it there), so a valve that
 stops turning does not undo the episode's progress.
 """
+
 from drs_torchrl.tasks import TaskFamily, register_family
 
 register_family(

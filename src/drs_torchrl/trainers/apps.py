@@ -8,6 +8,7 @@ Configs live in the repository's ``conf/`` (or ``$DRS_CONF_DIR``). Examples::
     drs-learn resume=runs/learn/pick_cube/drs/<run>          # continue an interrupted run
     drs-learn resume=runs/learn/pick_cube/drs/<run> total_frames=2000000   # ... and extend it
 """
+
 from __future__ import annotations
 
 import errno
@@ -24,7 +25,14 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from drs_torchrl.console import UserError, console_script, user_error_message
-from drs_torchrl.rundir import DiskFullError, RunDirBusyError, RunFileError, load_run_config, lock_run_dir, unlock_run_dir
+from drs_torchrl.rundir import (
+    DiskFullError,
+    RunDirBusyError,
+    RunFileError,
+    load_run_config,
+    lock_run_dir,
+    unlock_run_dir,
+)
 
 GROUPS = ("env", "reward", "algo", "logger")
 # files by which a directory is recognised as holding a run (Hydra's own .hydra/ is not one: it
@@ -106,7 +114,9 @@ def resume_config(run_dir: Path, phase: str, overrides: list[str], composed: Dic
             # "+key=value" may add an entry to a free-form mapping the run has (e.g. env.variant_overrides);
             # a key this version's config has and the run's lacks (added since the run started) is taken
             newer = composed is not None and OmegaConf.select(composed, key, default="__missing__") != "__missing__"
-            if not (newer or (adding and parent and isinstance(OmegaConf.select(saved, parent, default=None), DictConfig))):
+            if not (
+                newer or (adding and parent and isinstance(OmegaConf.select(saved, parent, default=None), DictConfig))
+            ):
                 raise ResumeError(f"override {key!r} does not exist in the config of {run_dir}")
         parsed = OmegaConf.select(composed, key) if composed is not None else yaml.safe_load(value)
         OmegaConf.update(saved, key, parsed, merge=True)
@@ -133,7 +143,9 @@ def check_fresh_run_dir(run_dir: Path, phase: str, overwrite: bool) -> None:
     """Refuse to start a new run in ``run_dir`` when it holds a run, unless ``overwrite``: then that
     run's files are removed first, so the new run's logs and checkpoints are not mixed with them."""
     # an empty checkpoints/ is what a run that failed to start leaves: no run to protect
-    found = [m for m in RUN_MARKERS if (run_dir / m).is_file() or ((run_dir / m).is_dir() and any((run_dir / m).iterdir()))]
+    found = [
+        m for m in RUN_MARKERS if (run_dir / m).is_file() or ((run_dir / m).is_dir() and any((run_dir / m).iterdir()))
+    ]
     if not found:
         return
     if not overwrite:
@@ -185,7 +197,11 @@ def _run(cfg: DictConfig, phase: str) -> None:
         if msg is None:
             raise
         print(f"drs-{phase}: error: {msg}", file=sys.stderr)
-        if not _disk_full(exc) and record is not None and record.name.startswith((".hydra-resume-", ".hydra-new-", ".hydra-refused-")):
+        if (
+            not _disk_full(exc)
+            and record is not None
+            and record.name.startswith((".hydra-resume-", ".hydra-new-", ".hydra-refused-"))
+        ):
             shutil.rmtree(record, ignore_errors=True)  # a failed resume leaves the run as it was
             if not locked:
                 try:
@@ -208,8 +224,10 @@ def _run(cfg: DictConfig, phase: str) -> None:
         print(f"  {name} checkpoint: {path}")
     if summary.get("interrupted"):
         # non-zero, as shells expect (130 SIGINT, 143 SIGTERM): "drs-learn ... && drs-reuse ..." stops here
-        print(f"drs-{phase}: interrupted at {summary['frames']} env steps; continue with: drs-{phase} resume={run_dir}",
-              file=sys.stderr)
+        print(
+            f"drs-{phase}: interrupted at {summary['frames']} env steps; continue with: drs-{phase} resume={run_dir}",
+            file=sys.stderr,
+        )
         sys.exit(128 + int(summary.get("signal", signal.SIGINT)))
 
 

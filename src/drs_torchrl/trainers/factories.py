@@ -6,6 +6,7 @@ critics, TorchRL's ``SACLoss`` with its target updater and optimisers, the repla
 sampling transform recomputes a learned reward, the reward-learning core, and the collector.
 :class:`~drs_torchrl.trainers.loop.Trainer` wires them into Algorithm 1.
 """
+
 from __future__ import annotations
 
 import functools
@@ -22,8 +23,15 @@ from drs_torchrl.precision import autocast
 from drs_torchrl.rewards import RewardSetup, dense_offset, new_reward_learner
 from drs_torchrl.tasks import TaskFamily
 
-__all__ = ["make_envs", "make_sac_agent", "make_loss_module", "make_optimizers", "make_replay_buffer",
-           "make_reward_learner", "make_collector"]
+__all__ = [
+    "make_envs",
+    "make_sac_agent",
+    "make_loss_module",
+    "make_optimizers",
+    "make_replay_buffer",
+    "make_reward_learner",
+    "make_collector",
+]
 
 
 def make_envs(cfg: DictConfig, family: TaskFamily, reward: RewardSetup, device: torch.device):
@@ -44,14 +52,16 @@ def make_envs(cfg: DictConfig, family: TaskFamily, reward: RewardSetup, device: 
         max_episode_steps=cfg.env.max_episode_steps,
     )
     env = make_family_env(family, cfg.env.split, seed=int(cfg.seed), **env_kwargs)
-    eval_env = make_family_env(family, cfg.eval.get("split") or cfg.env.split, seed=int(cfg.seed) + 10_000,
-                               **{**env_kwargs, "num_envs": 1})  # evaluation: one episode at a time
+    eval_env = make_family_env(
+        family, cfg.eval.get("split") or cfg.env.split, seed=int(cfg.seed) + 10_000, **{**env_kwargs, "num_envs": 1}
+    )  # evaluation: one episode at a time
     for e in (env, eval_env):
         if e.device != device:  # e.g. CPU simulation feeding a CUDA learner: data moves at the env edge
             e.append_transform(DeviceCastTransform(device, orig_device=e.device))
     if reward.frozen is not None:
-        reward.frozen.check_compatible(env.observation_spec, num_stages=family.num_stages, family=family.name,
-                                       action_spec=env.action_spec)
+        reward.frozen.check_compatible(
+            env.observation_spec, num_stages=family.num_stages, family=family.name, action_spec=env.action_spec
+        )
         reward.frozen.to(device)
         env.append_transform(reward.frozen)
         eval_env.append_transform(reward.frozen.clone())
@@ -61,7 +71,9 @@ def make_envs(cfg: DictConfig, family: TaskFamily, reward: RewardSetup, device: 
 def make_sac_agent(cfg: DictConfig, env, device: torch.device):
     """SAC's tanh-normal actor and a Q-network template (``algo.hidden``, reading ``algo.policy_in_keys``)."""
     a = cfg.algo
-    return make_sac_modules(env.observation_spec, env.action_spec, list(a.policy_in_keys), list(a.hidden), device=device)
+    return make_sac_modules(
+        env.observation_spec, env.action_spec, list(a.policy_in_keys), list(a.hidden), device=device
+    )
 
 
 def make_loss_module(cfg: DictConfig, actor, qvalue, action_spec, device: torch.device, precision: str = "fp32"):
@@ -82,9 +94,11 @@ def make_loss_module(cfg: DictConfig, actor, qvalue, action_spec, device: torch.
 def make_optimizers(cfg: DictConfig, loss) -> dict[str, torch.optim.Optimizer]:
     """One ``algo.optim`` each for the actor, the critics and the entropy coefficient."""
     opt = instantiate(cfg.algo.optim)
-    return {"actor": opt(list(loss.actor_network_params.values(True, True))),
-            "critic": opt(list(loss.qvalue_network_params.values(True, True))),
-            "alpha": opt([loss.log_alpha])}
+    return {
+        "actor": opt(list(loss.actor_network_params.values(True, True))),
+        "critic": opt(list(loss.qvalue_network_params.values(True, True))),
+        "alpha": opt([loss.log_alpha]),
+    }
 
 
 def make_replay_buffer(cfg: DictConfig, transform, device: torch.device, batch_size: int | None = None):
@@ -95,11 +109,14 @@ def make_replay_buffer(cfg: DictConfig, transform, device: torch.device, batch_s
     return instantiate(cfg.algo.replay_buffer, storage={"device": str(device)}, **extra)(transform=transform)
 
 
-def make_reward_learner(cfg: DictConfig, family: TaskFamily, env, device: torch.device, precision: str, step_fn,
-                        demos: list | None = None):
+def make_reward_learner(
+    cfg: DictConfig, family: TaskFamily, env, device: torch.device, precision: str, step_fn, demos: list | None = None
+):
     """The phase-1 reward learner of ``reward=<name>`` (:mod:`drs_torchrl.learners`), its checkpoint
     metadata describing the training split. ``step_fn(loss, optimizers)``: backward and steps."""
-    split_args = family.env_args(cfg.env.split, OmegaConf.to_container(cfg.env.variant_overrides) if cfg.env.variant_overrides else None)
+    split_args = family.env_args(
+        cfg.env.split, OmegaConf.to_container(cfg.env.variant_overrides) if cfg.env.variant_overrides else None
+    )
     meta: dict[str, Any] = {
         "family": family.name,
         "env_id": split_args["env_id"],
@@ -108,13 +125,25 @@ def make_reward_learner(cfg: DictConfig, family: TaskFamily, env, device: torch.
         "stage_keys": list(family.stage_keys),
         "seed": int(cfg.seed),
     }
-    return new_reward_learner(cfg.reward, family, env, meta, device=device,
-                              autocast=functools.partial(autocast, precision, device), step_fn=step_fn, demos=demos)
+    return new_reward_learner(
+        cfg.reward,
+        family,
+        env,
+        meta,
+        device=device,
+        autocast=functools.partial(autocast, precision, device),
+        step_fn=step_fn,
+        demos=demos,
+    )
 
 
 def make_collector(cfg: DictConfig, env, policy, frames: int, frames_done: int, device: torch.device):
     """``algo.collector`` for the next ``frames`` env steps (``env`` may be a worker-process
     constructor), with random actions until ``algo.learning_starts`` env steps in all."""
-    return instantiate(cfg.algo.collector)(env, policy, total_frames=frames,
-                                           init_random_frames=max(0, int(cfg.algo.learning_starts) - frames_done),
-                                           device=device)
+    return instantiate(cfg.algo.collector)(
+        env,
+        policy,
+        total_frames=frames,
+        init_random_frames=max(0, int(cfg.algo.learning_starts) - frames_done),
+        device=device,
+    )

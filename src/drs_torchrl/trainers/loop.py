@@ -7,6 +7,7 @@ samples. In phase 2 (and for the baselines) the reward sits frozen in the env.
 ``train(cfg, phase)`` wires TorchRL pieces built from the Hydra config; the pieces themselves live in
 their own modules and are usable without it.
 """
+
 from __future__ import annotations
 
 import functools
@@ -81,14 +82,29 @@ def requested_sac_share(cfg: DictConfig) -> float | None:
 # numeric settings and their types: a value of another type (``total_frames=abc``) is refused by name
 # before anything compares or computes with it
 _NUMERIC = {
-    "total_frames": int, "seed": int, "checkpoint_interval": int, "torch_threads": (int, type(None)),
-    "eval.interval": int, "eval.episodes": int, "eval.episode_seed": (int, type(None)),
-    "logger.interval": int, "logger.episode_window": int,
-    "algo.batch_size": int, "algo.frames_per_batch": int, "algo.learning_starts": int, "algo.buffer_size": int,
-    "algo.utd": (int, float), "algo.gamma": (int, float), "algo.tau": (int, float),
-    "reward.alpha": (int, float), "reward.stage_buffer_size": int,
-    "reward.disc.batch_size": int, "reward.disc.lr": (int, float), "reward.disc.updates_per_sac_update": (int, float),
-    "reward.disc.window": int, "reward.disc.early_stop_threshold": (int, float, type(None)),
+    "total_frames": int,
+    "seed": int,
+    "checkpoint_interval": int,
+    "torch_threads": (int, type(None)),
+    "eval.interval": int,
+    "eval.episodes": int,
+    "eval.episode_seed": (int, type(None)),
+    "logger.interval": int,
+    "logger.episode_window": int,
+    "algo.batch_size": int,
+    "algo.frames_per_batch": int,
+    "algo.learning_starts": int,
+    "algo.buffer_size": int,
+    "algo.utd": (int, float),
+    "algo.gamma": (int, float),
+    "algo.tau": (int, float),
+    "reward.alpha": (int, float),
+    "reward.stage_buffer_size": int,
+    "reward.disc.batch_size": int,
+    "reward.disc.lr": (int, float),
+    "reward.disc.updates_per_sac_update": (int, float),
+    "reward.disc.window": int,
+    "reward.disc.early_stop_threshold": (int, float, type(None)),
 }
 
 
@@ -99,14 +115,26 @@ def _check_types(cfg: DictConfig) -> None:
             continue
         if isinstance(value, bool) or not isinstance(value, types):
             kinds = types if isinstance(types, tuple) else (types,)
-            want = " or ".join("null" if t is type(None) else ("a number" if t is float else "an integer") for t in kinds
-                               if not (t is int and float in kinds))
-            raise ConfigError(f"{key} must be {want}, got {value!r} ({type(value).__name__}); e.g. {key}="
-                              f"{_EXAMPLES.get(key, 1)}")
+            want = " or ".join(
+                "null" if t is type(None) else ("a number" if t is float else "an integer")
+                for t in kinds
+                if not (t is int and float in kinds)
+            )
+            raise ConfigError(
+                f"{key} must be {want}, got {value!r} ({type(value).__name__}); e.g. {key}={_EXAMPLES.get(key, 1)}"
+            )
 
 
-_EXAMPLES = {"total_frames": 200000, "algo.gamma": 0.8, "algo.tau": 0.005, "algo.utd": 0.5, "reward.alpha": 0.3333,
-             "reward.disc.lr": 0.0003, "algo.batch_size": 256, "seed": 0}
+_EXAMPLES = {
+    "total_frames": 200000,
+    "algo.gamma": 0.8,
+    "algo.tau": 0.005,
+    "algo.utd": 0.5,
+    "reward.alpha": 0.3333,
+    "reward.disc.lr": 0.0003,
+    "algo.batch_size": 256,
+    "seed": 0,
+}
 
 
 def collects_in_background(cfg: DictConfig) -> bool:
@@ -125,8 +153,10 @@ def collector_for_device(cfg: DictConfig, device: torch.device) -> str | None:
     with open_dict(cfg):
         cfg.algo.collector._target_ = "torchrl.collectors.Collector"
         cfg.algo.collector.pop("num_workers", None)
-    return (f"device={torch.device(device).type}: the in-process torchrl.collectors.Collector replaces "
-            f"algo.collector={target} (a background worker cannot feed a GPU learner)")
+    return (
+        f"device={torch.device(device).type}: the in-process torchrl.collectors.Collector replaces "
+        f"algo.collector={target} (a background worker cannot feed a GPU learner)"
+    )
 
 
 def validate_config(cfg: DictConfig, phase: str) -> None:
@@ -140,16 +170,25 @@ def validate_config(cfg: DictConfig, phase: str) -> None:
         (a.utd > 0, f"algo.utd must be > 0, got {a.utd}"),
         (0 < a.gamma <= 1, f"algo.gamma must be in (0, 1], got {a.gamma}"),
         (a.learning_starts >= 0, f"algo.learning_starts must be >= 0, got {a.learning_starts}"),
-        (a.buffer_size >= a.batch_size, f"algo.buffer_size ({a.buffer_size}) is smaller than algo.batch_size ({a.batch_size})"),
+        (
+            a.buffer_size >= a.batch_size,
+            f"algo.buffer_size ({a.buffer_size}) is smaller than algo.batch_size ({a.batch_size})",
+        ),
         (cfg.eval.episodes >= 0 and cfg.eval.interval > 0, "eval.episodes must be >= 0 and eval.interval > 0"),
-        (cfg.eval.get("episode_seed") is None or cfg.eval.episode_seed >= 0,
-         f"eval.episode_seed must be null or >= 0, got {cfg.eval.get('episode_seed')}"),
+        (
+            cfg.eval.get("episode_seed") is None or cfg.eval.episode_seed >= 0,
+            f"eval.episode_seed must be null or >= 0, got {cfg.eval.get('episode_seed')}",
+        ),
         (phase in ("learn", "reuse"), f"phase must be learn or reuse, got {phase}"),
     ]
     if phase == "learn" and cfg.reward.name in LEARNED:
         checks.append((cfg.reward.disc.batch_size > 0, "reward.disc.batch_size must be > 0"))
-        checks.append((cfg.reward.disc.updates_per_sac_update > 0,
-                       f"reward.disc.updates_per_sac_update must be > 0 (fractions allowed, e.g. 0.5), got {cfg.reward.disc.updates_per_sac_update}"))
+        checks.append(
+            (
+                cfg.reward.disc.updates_per_sac_update > 0,
+                f"reward.disc.updates_per_sac_update must be > 0 (fractions allowed, e.g. 0.5), got {cfg.reward.disc.updates_per_sac_update}",
+            )
+        )
     for ok, msg in checks:
         if not ok:
             raise ConfigError(msg)
@@ -158,16 +197,22 @@ def validate_config(cfg: DictConfig, phase: str) -> None:
     if stage_buffers not in (True, False, "auto"):
         raise ConfigError(f"demos.stage_buffers must be true, false or auto, got {stage_buffers!r}")
     if stage_buffers is False and (phase != "learn" or cfg.reward.name != "drs"):
-        raise ConfigError("demos.stage_buffers=false is for drs-learn reward=drs (the demonstrations in the SAC batch "
-                          f"only); this run is drs-{phase} reward={cfg.reward.name}")
+        raise ConfigError(
+            "demos.stage_buffers=false is for drs-learn reward=drs (the demonstrations in the SAC batch "
+            f"only); this run is drs-{phase} reward={cfg.reward.name}"
+        )
     stop = cfg.get("stop_at_success")
     if stop is not None and (isinstance(stop, bool) or not isinstance(stop, (int, float)) or not 0 <= stop <= 1):
-        raise ConfigError(f"stop_at_success must be null or a success rate in [0, 1], got {stop!r}; e.g. stop_at_success=0.8")
+        raise ConfigError(
+            f"stop_at_success must be null or a success rate in [0, 1], got {stop!r}; e.g. stop_at_success=0.8"
+        )
     if cfg.logger.get("wandb", False):
         import importlib.util
 
         if importlib.util.find_spec("wandb") is None:
-            raise ConfigError("logger.wandb=true needs the wandb package: pip install wandb (or set logger.wandb=false)")
+            raise ConfigError(
+                "logger.wandb=true needs the wandb package: pip install wandb (or set logger.wandb=false)"
+            )
         if cfg.logger.get("wandb_mode", "offline") not in ("offline", "online"):
             raise ConfigError(f"logger.wandb_mode must be offline or online, got {cfg.logger.wandb_mode!r}")
     if cfg.device not in ("cpu", "auto") and not str(cfg.device).startswith("cuda"):
@@ -184,7 +229,12 @@ def seed_everything(seed: int) -> None:
 
 def episode_summary(ep, reward_fn) -> tuple[int, bool, int, float]:
     """(highest stage, success, length, return) of one finished episode."""
-    return (int(ep["next", "stage"].max()), bool(ep["next", "success"].any()), int(ep.shape[0]), float(reward_fn(ep).sum()))
+    return (
+        int(ep["next", "stage"].max()),
+        bool(ep["next", "success"].any()),
+        int(ep.shape[0]),
+        float(reward_fn(ep).sum()),
+    )
 
 
 def aggregate_episodes(summaries, num_stages: int) -> dict[str, float]:
@@ -222,7 +272,11 @@ class Trainer:
         seed_everything(int(cfg.seed))
         if cfg.get("torch_threads"):
             torch.set_num_threads(int(cfg.torch_threads))
-        self.device = torch.device("cuda" if cfg.device == "auto" and torch.cuda.is_available() else ("cpu" if cfg.device == "auto" else cfg.device))
+        self.device = torch.device(
+            "cuda"
+            if cfg.device == "auto" and torch.cuda.is_available()
+            else ("cpu" if cfg.device == "auto" else cfg.device)
+        )
         # algo.precision: autocast of the learner's forward passes, fp32 master weights (drs_torchrl.precision)
         self.precision = resolve_precision(str(cfg.algo.get("precision") or "fp32"), self.device)
         if cfg.algo.get("precision") == "auto":  # saved resolved: a resume on another machine keeps this run's numerics
@@ -251,29 +305,43 @@ class Trainer:
             # demos.stage_buffers=false: the demonstrations feed the SAC batch only, so the discriminators'
             # positives are the agent's own successes (no "moves like the demonstrator" shortcut; results/reuse/pick_cube/)
             filed = demos if self._resolve_stage_buffers(cfg, demos, asked) else None
-            self.learner = make_reward_learner(cfg, family, self.env, self.device, self.precision,
-                                               functools.partial(backward_and_step, self._grad_scaler),
-                                               demos=None if (resume and reward.name == "drs") else filed)
+            self.learner = make_reward_learner(
+                cfg,
+                family,
+                self.env,
+                self.device,
+                self.precision,
+                functools.partial(backward_and_step, self._grad_scaler),
+                demos=None if (resume and reward.name == "drs") else filed,
+            )
             reward.learned = self.learner.reward
         self.learned = reward.learned
 
         self.actor, self.qvalue = make_sac_agent(cfg, self.env, self.device)
-        self.loss, self.target_updater = make_loss_module(cfg, self.actor, self.qvalue, self.env.action_spec, self.device, self.precision)
+        self.loss, self.target_updater = make_loss_module(
+            cfg, self.actor, self.qvalue, self.env.action_spec, self.device, self.precision
+        )
         if cfg.get("init_from") and not resume:  # Sec. 5.4.2: fine-tune a phase-1 agent instead of a fresh one
             self._init_from(cfg.init_from)
         # algo.compile: the SAC loss's forward (and, through AOTAutograd, its backward) compiled with
         # torch.compile; the module, its parameters and checkpoints stay those of self.loss
-        self._loss_fn = torch.compile(self.loss, **(cfg.algo.get("compile_kwargs") or {})) if cfg.algo.get("compile") else self.loss
+        self._loss_fn = (
+            torch.compile(self.loss, **(cfg.algo.get("compile_kwargs") or {})) if cfg.algo.get("compile") else self.loss
+        )
         self.optimizers = make_optimizers(cfg, self.loss)
-        self.optim_actor, self.optim_critic, self.optim_alpha = (self.optimizers[k] for k in ("actor", "critic", "alpha"))
+        self.optim_actor, self.optim_critic, self.optim_alpha = (
+            self.optimizers[k] for k in ("actor", "critic", "alpha")
+        )
         # the learned reward recomputes ("next", "reward") from the current discriminators at sampling
         # (its storage lives on the learner's device, where the reward transform runs)
         # (with demos.sac_share, the demonstrations' own buffer fills its share of each batch, the agent's the rest)
         self.demo_replay, self._demo_batch = self._demo_transitions(cfg, demos if self.learner is not None else None)
         if demos and (cfg.get("demos") or {}).get("stage_buffers", True) is False and self._demo_batch == 0:
-            raise ConfigError(f"demos.stage_buffers=false keeps the demonstrations out of the stage buffers, and demos.sac_share "
-                              f"is {cfg.demos.sac_share}: they would not be used at all; set demos.sac_share=0.25 "
-                              "(demonstrations with the agent's actions: drs-demos' default) or demos.stage_buffers=true")
+            raise ConfigError(
+                f"demos.stage_buffers=false keeps the demonstrations out of the stage buffers, and demos.sac_share "
+                f"is {cfg.demos.sac_share}: they would not be used at all; set demos.sac_share=0.25 "
+                "(demonstrations with the agent's actions: drs-demos' default) or demos.stage_buffers=true"
+            )
         self.replay = make_replay_buffer(cfg, self.learned, self.device, int(cfg.algo.batch_size) - self._demo_batch)
         # the actor's intermediate outputs and the collector's bookkeeping are not stored: SACLoss
         # recomputes the former, nothing reads the latter, and every extra key costs at each sample
@@ -293,8 +361,12 @@ class Trainer:
             self.resumed_from = self.frames
             self.env.set_seed(int(cfg.seed) + 1 + self.frames)  # fresh episodes, not the first run's
         self.logger = RunLogger(
-            self.run_dir, tensorboard=cfg.logger.tensorboard, csv_files=cfg.logger.csv, resume_step=self.resumed_from,
-            wandb=bool(cfg.logger.get("wandb", False)), wandb_project=cfg.logger.get("wandb_project", "drs-torchrl"),
+            self.run_dir,
+            tensorboard=cfg.logger.tensorboard,
+            csv_files=cfg.logger.csv,
+            resume_step=self.resumed_from,
+            wandb=bool(cfg.logger.get("wandb", False)),
+            wandb_project=cfg.logger.get("wandb_project", "drs-torchrl"),
             wandb_mode=cfg.logger.get("wandb_mode", "offline"),
         )
         # written last: a run that fails to start (or to resume) leaves the directory as it was
@@ -326,13 +398,19 @@ class Trainer:
             episodes, meta = restage_demos(episodes, meta, family.stage_keys)
         mismatched = variant_mismatches(meta, cfg.env.get("variant_overrides"))
         if mismatched:
-            overrides = " ".join(f"--override {k}={v}" for k, v in OmegaConf.to_container(cfg.env.variant_overrides).items())
-            tqdm.write(f"drs-{self.phase}: warning: {demos['path']} were recorded without this run's env.variant_overrides "
-                       f"{'; '.join(mismatched)}: their stages follow the recording's task. To match, record them with "
-                       f"drs-demos --family {family.name} {overrides} --out NEW.demos")
+            overrides = " ".join(
+                f"--override {k}={v}" for k, v in OmegaConf.to_container(cfg.env.variant_overrides).items()
+            )
+            tqdm.write(
+                f"drs-{self.phase}: warning: {demos['path']} were recorded without this run's env.variant_overrides "
+                f"{'; '.join(mismatched)}: their stages follow the recording's task. To match, record them with "
+                f"drs-demos --family {family.name} {overrides} --out NEW.demos"
+            )
         in_keys = list(cfg.reward.get("in_keys") or family.reward_in_keys)
         spec = self.env.observation_spec
-        check_demos(meta, family, {k: int(spec[k].shape[-1]) for k in in_keys if k in spec.keys(True, True)}, demos["path"])
+        check_demos(
+            meta, family, {k: int(spec[k].shape[-1]) for k in in_keys if k in spec.keys(True, True)}, demos["path"]
+        )
         n = len(episodes) if demos.get("num") is None else int(demos["num"])
         if n > len(episodes):
             raise ConfigError(f"demos.num={n} but {demos['path']} holds only {len(episodes)} demonstrations")
@@ -340,12 +418,16 @@ class Trainer:
             acts = meta.get("actions")
             mode = self._control_mode(cfg)
             if acts is None:
-                raise ConfigError(f"reward={cfg.reward.name} reads (s, a), but {demos['path']} holds states only (planner "
-                                  "demonstrations, or recorded before actions were kept); record demonstrations with "
-                                  "drs-demos --from-policy RUN_DIR, or use reward.use_action=false")
+                raise ConfigError(
+                    f"reward={cfg.reward.name} reads (s, a), but {demos['path']} holds states only (planner "
+                    "demonstrations, or recorded before actions were kept); record demonstrations with "
+                    "drs-demos --from-policy RUN_DIR, or use reward.use_action=false"
+                )
             if acts["control_mode"] != mode or int(acts["size"]) != int(self.env.action_spec.shape[-1]):
-                raise ConfigError(f"the actions in {demos['path']} are {acts['size']}-dimensional {acts['control_mode']} "
-                                  f"commands; this run acts with {int(self.env.action_spec.shape[-1])}-dimensional {mode}")
+                raise ConfigError(
+                    f"the actions in {demos['path']} are {acts['size']}-dimensional {acts['control_mode']} "
+                    f"commands; this run acts with {int(self.env.action_spec.shape[-1])}-dimensional {mode}"
+                )
         self.num_demos = n
         return episodes[:n]
 
@@ -356,9 +438,13 @@ class Trainer:
         problems = []
         if ck.get("family") != self.family.name:
             problems.append(f"it is a policy for family {ck.get('family')!r}, this run is {self.family.name!r}")
-        if list(ck["policy_in_keys"]) != list(self.cfg.algo.policy_in_keys) or list(ck["hidden"]) != list(self.cfg.algo.hidden):
-            problems.append(f"its networks read {ck['policy_in_keys']} with hidden {ck['hidden']}, this run's read "
-                            f"{list(self.cfg.algo.policy_in_keys)} with hidden {list(self.cfg.algo.hidden)}")
+        if list(ck["policy_in_keys"]) != list(self.cfg.algo.policy_in_keys) or list(ck["hidden"]) != list(
+            self.cfg.algo.hidden
+        ):
+            problems.append(
+                f"its networks read {ck['policy_in_keys']} with hidden {ck['hidden']}, this run's read "
+                f"{list(self.cfg.algo.policy_in_keys)} with hidden {list(self.cfg.algo.hidden)}"
+            )
         if "qvalue_params" not in ck:
             problems.append("it holds no critics")
         if not problems:
@@ -377,7 +463,9 @@ class Trainer:
 
     def _control_mode(self, cfg) -> str:
         """The controller this run's agent acts with (env.control_mode, else its split's, else the family's)."""
-        return cfg.env.control_mode or self.family.env_args(cfg.env.split).get("control_mode") or self.family.control_mode
+        return (
+            cfg.env.control_mode or self.family.env_args(cfg.env.split).get("control_mode") or self.family.control_mode
+        )
 
     def _resolve_stage_buffers(self, cfg, demos, asked) -> bool:
         """``demos.stage_buffers``: true / false as asked; ``auto`` (the default recipe, docs/recipe.md) keeps
@@ -386,12 +474,23 @@ class Trainer:
         want = (cfg.get("demos") or {}).get("stage_buffers", True)
         if want != "auto":
             return bool(want)
-        sac_only = bool(demos) and self.reward.name == "drs" and asked != 0 and "action" in demos[0].keys() \
-            and "state" in demos[0].keys() and int(demos[0]["action"].shape[-1]) == int(self.env.action_spec.shape[-1])
+        sac_only = (
+            bool(demos)
+            and self.reward.name == "drs"
+            and asked != 0
+            and "action" in demos[0].keys()
+            and "state" in demos[0].keys()
+            and int(demos[0]["action"].shape[-1]) == int(self.env.action_spec.shape[-1])
+        )
         if demos:
-            tqdm.write(f"drs-{self.phase}: demos.stage_buffers=auto -> {str(not sac_only).lower()}: " + (
-                "the demonstrations feed the SAC batch only; the discriminators' positives are the agent's own successes"
-                if sac_only else "the demonstrations go into the top stage buffer (the paper's Algorithm 1, line 3)"))
+            tqdm.write(
+                f"drs-{self.phase}: demos.stage_buffers=auto -> {str(not sac_only).lower()}: "
+                + (
+                    "the demonstrations feed the SAC batch only; the discriminators' positives are the agent's own successes"
+                    if sac_only
+                    else "the demonstrations go into the top stage buffer (the paper's Algorithm 1, line 3)"
+                )
+            )
         with open_dict(cfg):
             cfg.demos.stage_buffers = not sac_only
         return not sac_only
@@ -399,17 +498,23 @@ class Trainer:
     def _sac_share_problems(self, cfg, demos) -> list[str]:
         """Why the demonstrations cannot fill a share of the SAC batch (empty when they can)."""
         if self.learner is None or not demos:
-            return ["demos.sac_share needs demonstrations (demos.path) and a reward learned in this run "
-                    "(drs-learn reward=drs|vice_raq|oril|gail), which rewards them at sampling"]
+            return [
+                "demos.sac_share needs demonstrations (demos.path) and a reward learned in this run "
+                "(drs-learn reward=drs|vice_raq|oril|gail), which rewards them at sampling"
+            ]
         if "action" not in demos[0].keys() or "state" not in demos[0].keys():
-            return [f"demos.sac_share: {cfg.demos.path} holds states only; SAC needs the agent's actions and "
-                    "the states they were taken in (drs-demos records them in the agent's controller, as does --from-policy)"]
+            return [
+                f"demos.sac_share: {cfg.demos.path} holds states only; SAC needs the agent's actions and "
+                "the states they were taken in (drs-demos records them in the agent's controller, as does --from-policy)"
+            ]
         have, want = int(demos[0]["action"].shape[-1]), int(self.env.action_spec.shape[-1])
         if have != want:
             mode = self._control_mode(cfg)
-            return [f"demos.sac_share: the actions in {cfg.demos.path} are {have}-dimensional; this run acts with "
-                    f"{want}-dimensional {mode} commands. Record the demonstrations in the agent's controller "
-                    f"(drs-demos --control-mode {mode}, the default, or drs-demos --from-policy), or set demos.sac_share=0"]
+            return [
+                f"demos.sac_share: the actions in {cfg.demos.path} are {have}-dimensional; this run acts with "
+                f"{want}-dimensional {mode} commands. Record the demonstrations in the agent's controller "
+                f"(drs-demos --control-mode {mode}, the default, or drs-demos --from-policy), or set demos.sac_share=0"
+            ]
         root_keys = [k for k in self.loss.in_keys if isinstance(k, str) and k != "action"]
         missing = [k for k in root_keys if k not in demos[0].get("state").keys()]
         if missing:
@@ -431,9 +536,15 @@ class Trainer:
         problems = self._sac_share_problems(cfg, demos)
         if asked is None:
             share = 0.0 if problems else AUTO_SAC_SHARE
-            tqdm.write(f"drs-{self.phase}: demos.sac_share=auto -> {share:g}: " + (
-                problems[0] if problems else f"a share of every SAC batch from the {len(demos)} demonstrations' transitions "
-                "(beyond the paper: demos.sac_share=0 is its phase 1; results/demos_compare/pick_cube/)"))
+            tqdm.write(
+                f"drs-{self.phase}: demos.sac_share=auto -> {share:g}: "
+                + (
+                    problems[0]
+                    if problems
+                    else f"a share of every SAC batch from the {len(demos)} demonstrations' transitions "
+                    "(beyond the paper: demos.sac_share=0 is its phase 1; results/demos_compare/pick_cube/)"
+                )
+            )
             cfg.demos.sac_share = share  # saved resolved: a resume keeps this run's choice
             if share == 0:
                 return None, 0
@@ -449,12 +560,23 @@ class Trainer:
             ends = torch.zeros(T, 1, dtype=torch.bool)
             ends[-1] = bool(ep["success"][-1])  # demonstrations end on success
             nxt = TensorDict({k: ep.get(k) for k in next_keys}, batch_size=[T])
-            nxt.update({"reward": torch.zeros(T, 1), "done": ends.clone(), "terminated": ends.clone(),
-                        "truncated": torch.zeros(T, 1, dtype=torch.bool)})
-            rows.append(TensorDict({**{k: ep.get("state").get(k) for k in root_keys}, "action": ep.get("action"),
-                                    "next": nxt}, batch_size=[T]))
-        buffer = ReplayBuffer(storage=LazyTensorStorage(sum(r.shape[0] for r in rows), device=self.device),
-                              transform=self.learned)
+            nxt.update(
+                {
+                    "reward": torch.zeros(T, 1),
+                    "done": ends.clone(),
+                    "terminated": ends.clone(),
+                    "truncated": torch.zeros(T, 1, dtype=torch.bool),
+                }
+            )
+            rows.append(
+                TensorDict(
+                    {**{k: ep.get("state").get(k) for k in root_keys}, "action": ep.get("action"), "next": nxt},
+                    batch_size=[T],
+                )
+            )
+        buffer = ReplayBuffer(
+            storage=LazyTensorStorage(sum(r.shape[0] for r in rows), device=self.device), transform=self.learned
+        )
         buffer.extend(torch.cat(rows, 0).to(self.device))
         n = max(1, round(share * int(cfg.algo.batch_size)))
         return buffer, n
@@ -505,7 +627,11 @@ class Trainer:
         }
         # the training state written next must fit too: a run never holds checkpoints newer than its state
         reward = nbytes(self.learner.reward.state_dict()) if self.learner is not None else 0
-        ensure_free(ck, nbytes(policy) + reward + self._state_bytes(self._state_payload()), "the checkpoints and training state in")
+        ensure_free(
+            ck,
+            nbytes(policy) + reward + self._state_bytes(self._state_payload()),
+            "the checkpoints and training state in",
+        )
         atomic_torch_save(policy, ck / "policy.pt")
         paths["policy"] = str(ck / "policy.pt")
         return paths
@@ -564,8 +690,11 @@ class Trainer:
             "version": STATE_VERSION,
             "phase": self.phase,
             "counters": {
-                "frames": self.frames, "updates": self.updates, "disc_updates": self.disc_updates,
-                "owed_updates": self._owed_updates, "last_eval_frames": self._last_eval_frames,
+                "frames": self.frames,
+                "updates": self.updates,
+                "disc_updates": self.disc_updates,
+                "owed_updates": self._owed_updates,
+                "last_eval_frames": self._last_eval_frames,
             },
             "loss": self.loss.state_dict(),
             "optimizers": {k: o.state_dict() for k, o in self._optimizers().items()},
@@ -576,8 +705,12 @@ class Trainer:
 
     def _state_bytes(self, payload: dict) -> int:
         """About the bytes the training state takes on disk: ``payload``'s tensors and the buffers' filled slots."""
-        learner_buffers = [b for b in vars(self.learner).values() if isinstance(b, ReplayBuffer)] if self.learner else []
-        return nbytes(payload) + sum(buffer_bytes(b) for b in {id(b): b for b in [self.replay, *learner_buffers]}.values())
+        learner_buffers = (
+            [b for b in vars(self.learner).values() if isinstance(b, ReplayBuffer)] if self.learner else []
+        )
+        return nbytes(payload) + sum(
+            buffer_bytes(b) for b in {id(b): b for b in [self.replay, *learner_buffers]}.values()
+        )
 
     def load_training_state(self) -> None:
         state_dir = find_training_state(self.run_dir)
@@ -585,13 +718,17 @@ class Trainer:
             payload = torch.load(state_dir / "trainer.pt", map_location="cpu", weights_only=False)
         except Exception as exc:
             why = str(exc).split(". ")[0].split("\n")[0]
-            raise TrainingStateError(f"{state_dir / 'trainer.pt'} cannot be read (corrupt or truncated: {why}); the run cannot "
-                                     "continue from it: start it afresh with overwrite=true (its checkpoints/reward.pt and "
-                                     "policy.pt are separate files: copy them first to keep them)") from exc
+            raise TrainingStateError(
+                f"{state_dir / 'trainer.pt'} cannot be read (corrupt or truncated: {why}); the run cannot "
+                "continue from it: start it afresh with overwrite=true (its checkpoints/reward.pt and "
+                "policy.pt are separate files: copy them first to keep them)"
+            ) from exc
         if payload.get("format") != STATE_FORMAT or int(payload.get("version", 99)) > STATE_VERSION:
             raise TrainingStateError(f"{state_dir} was not written by this version of drs-torchrl")
         if payload["phase"] != self.phase:
-            raise TrainingStateError(f"{self.run_dir} is a drs-{payload['phase']} run; resume it with drs-{payload['phase']}")
+            raise TrainingStateError(
+                f"{self.run_dir} is a drs-{payload['phase']} run; resume it with drs-{payload['phase']}"
+            )
         c = payload["counters"]
         self.frames, self.updates = int(c["frames"]), int(c["updates"])
         self._owed_updates, self._last_eval_frames = float(c["owed_updates"]), int(c["last_eval_frames"])
@@ -604,9 +741,13 @@ class Trainer:
             if self.learner is not None:
                 state = payload.get("learner")
                 if state is None:  # written before the reward learners existed: a DrS run's parts at the top level
-                    state = {"reward": payload["reward"], "disc_loss": payload["disc_loss"], "updates": int(c["disc_updates"]),
-                             "optimizers": {"discriminator": payload["optimizers"]["discriminator"]},
-                             "stage_buffer_episodes": payload["stage_buffer_episodes"]}
+                    state = {
+                        "reward": payload["reward"],
+                        "disc_loss": payload["disc_loss"],
+                        "updates": int(c["disc_updates"]),
+                        "optimizers": {"discriminator": payload["optimizers"]["discriminator"]},
+                        "stage_buffer_episodes": payload["stage_buffer_episodes"],
+                    }
                 self.learner.load_state_dict(state)
                 self.learner.load_buffers(state_dir)
             load_buffer(self.replay, state_dir / "replay")
@@ -647,8 +788,14 @@ class Trainer:
         transforms = (self.reward.frozen.clone(),) if self.reward.frozen is not None else ()
 
         def factory(worker: int):
-            make = functools.partial(make_family_env, self.family, self.cfg.env.split, seed=seed + 7919 * worker,
-                                     transforms=transforms, **self._env_kwargs)
+            make = functools.partial(
+                make_family_env,
+                self.family,
+                self.cfg.env.split,
+                seed=seed + 7919 * worker,
+                transforms=transforms,
+                **self._env_kwargs,
+            )
             return functools.partial(_background_worker_env, make)
 
         if issubclass(get_class(self.cfg.algo.collector._target_), AsyncCollector):
@@ -665,8 +812,14 @@ class Trainer:
         """Algorithm 1 from where the run stands to ``total_frames`` env steps; returns the summary."""
         cfg = self.cfg
         total = int(cfg.total_frames)
-        summary: dict[str, Any] = {"phase": self.phase, "run_dir": str(self.run_dir), "resumed_from": self.resumed_from,
-                                   "precision": self.precision, "init_from": cfg.get("init_from"), "code": code_version()}
+        summary: dict[str, Any] = {
+            "phase": self.phase,
+            "run_dir": str(self.run_dir),
+            "resumed_from": self.resumed_from,
+            "precision": self.precision,
+            "init_from": cfg.get("init_from"),
+            "code": code_version(),
+        }
         tqdm.write(f"drs-{self.phase}: {describe_precision(self.precision, self.device)}")
         for note in self.notes:
             tqdm.write(f"drs-{self.phase}: {note}")
@@ -676,8 +829,14 @@ class Trainer:
             self.collector = self.make_collector(total - self.frames)
             if self.collects_in_background and not self.env.is_closed:
                 self.env.close()  # its specs were all the trainer needed; the worker has its own simulator
-        bar = tqdm(total=total, initial=self.frames, desc=f"drs-{self.phase}", unit="step",
-                   disable=not cfg.logger.progress_bar, dynamic_ncols=True)
+        bar = tqdm(
+            total=total,
+            initial=self.frames,
+            desc=f"drs-{self.phase}",
+            unit="step",
+            disable=not cfg.logger.progress_bar,
+            dynamic_ncols=True,
+        )
         stop = _StopRequest()
         previous = stop.install()  # stays until run() returns: the final eval and saves stop cleanly too
         try:
@@ -689,7 +848,9 @@ class Trainer:
         """The loop of Algorithm 1: collect, file episodes, update the reward learner and SAC at the
         configured UTD, and log / evaluate / checkpoint on schedule, until the budget or a signal."""
         cfg, win = self.cfg, _Window()
-        log_at, eval_at, ckpt_at = (_Every(int(i), self.frames) for i in (cfg.logger.interval, cfg.eval.interval, cfg.checkpoint_interval))
+        log_at, eval_at, ckpt_at = (
+            _Every(int(i), self.frames) for i in (cfg.logger.interval, cfg.eval.interval, cfg.checkpoint_interval)
+        )
         it = iter(self.collector) if self.collector is not None else iter(())
         t0, frames0, interrupted, forced = time.perf_counter(), self.frames, False, False
         try:
@@ -713,14 +874,18 @@ class Trainer:
                     self.logger.flush()
                 if stop.signum is not None:  # SIGINT/SIGTERM: stop here, between two rounds
                     interrupted, summary["signal"] = True, int(stop.signum)
-                    tqdm.write(f"signal {stop.signum} at {self.frames} env steps: saving the training state in "
-                               f"{self.run_dir / 'checkpoints'}")
+                    tqdm.write(
+                        f"signal {stop.signum} at {self.frames} env steps: saving the training state in "
+                        f"{self.run_dir / 'checkpoints'}"
+                    )
                     break
         except KeyboardInterrupt:  # a second Ctrl-C forces the stop wherever the loop was
             interrupted = forced = True
             summary["signal"] = int(signal.SIGINT)
-            tqdm.write(f"forced stop at {self.frames} env steps: the last periodic training state is kept "
-                       "(the buffers may be mid-write, so nothing is saved now)")
+            tqdm.write(
+                f"forced stop at {self.frames} env steps: the last periodic training state is kept "
+                "(the buffers may be mid-write, so nothing is saved now)"
+            )
         except Exception:  # NaN, a full disk, ...: the collector's worker must not outlive the run
             bar.close()
             self.close()
@@ -739,10 +904,16 @@ class Trainer:
         target = self.cfg.get("stop_at_success")
         if target is None or len(self.recent) < self.recent.maxlen or row.get("success_rate", 0.0) < float(target):
             return False
-        summary["stopped_at_success"] = {"success_rate": float(row["success_rate"]), "threshold": float(target),
-                                         "frames": int(self.frames), "episodes": len(self.recent)}
-        tqdm.write(f"drs-{self.phase}: training success {row['success_rate']:.2f} over the last {len(self.recent)} episodes "
-                   f">= stop_at_success={float(target):g} at {self.frames} env steps: stopping")
+        summary["stopped_at_success"] = {
+            "success_rate": float(row["success_rate"]),
+            "threshold": float(target),
+            "frames": int(self.frames),
+            "episodes": len(self.recent),
+        }
+        tqdm.write(
+            f"drs-{self.phase}: training success {row['success_rate']:.2f} over the last {len(self.recent)} episodes "
+            f">= stop_at_success={float(target):g} at {self.frames} env steps: stopping"
+        )
         return True
 
     def _store(self, batch) -> int:
@@ -785,7 +956,9 @@ class Trainer:
             self.logger.log("eval", self.frames, ev)
             summary["last_eval"] = ev
 
-    def _finish(self, summary: dict, win: "_Window", t0: float, frames0: int, interrupted: bool, forced: bool) -> dict[str, Any]:
+    def _finish(
+        self, summary: dict, win: "_Window", t0: float, frames0: int, interrupted: bool, forced: bool
+    ) -> dict[str, Any]:
         """The last rows, a final evaluation (unless interrupted), the saves (unless forced) and ``summary.json``."""
         elapsed = time.perf_counter() - t0
         if win.frames:
@@ -798,8 +971,12 @@ class Trainer:
         else:
             summary["frames_at_last_state"] = int(self.frames)  # informational; resume uses the saved state
         summary.update(
-            frames=self.frames, updates=self.updates, disc_updates=self.disc_updates,
-            wall_time_s=elapsed, env_steps_per_s=(self.frames - frames0) / max(elapsed, 1e-9), interrupted=interrupted,
+            frames=self.frames,
+            updates=self.updates,
+            disc_updates=self.disc_updates,
+            wall_time_s=elapsed,
+            env_steps_per_s=(self.frames - frames0) / max(elapsed, 1e-9),
+            interrupted=interrupted,
         )
         if self.learner is not None:
             summary.update(self.learner.summary())
@@ -848,7 +1025,12 @@ class Trainer:
         if win.rewards:
             r = torch.cat(win.rewards)
             self._check_finite("rewards", r)
-            row.update(reward_mean=float(r.mean()), reward_std=float(r.std()), reward_min=float(r.min()), reward_max=float(r.max()))
+            row.update(
+                reward_mean=float(r.mean()),
+                reward_std=float(r.std()),
+                reward_min=float(r.min()),
+                reward_max=float(r.max()),
+            )
         if win.disc:
             st = torch.stack(win.disc)
             for k in st.keys():

@@ -40,6 +40,7 @@ SAC families' (:class:`~drs_torchrl.learners.DrSLearner`: stage buffers, ``Discr
 demonstrations), and the run is logged through the same TorchRL loggers. The reward figure,
 diagnostics and report live in :mod:`drs_torchrl.maze_analysis`.
 """
+
 from __future__ import annotations
 
 import json
@@ -69,7 +70,12 @@ from torchrl.objectives import DQNLoss, ValueEstimators
 from drs_torchrl.provenance import code_version
 from drs_torchrl.data import TrajectoryAssembler
 from drs_torchrl.envs.maze import ACTIONS, GATES, MOVES, OBS_DIMS, ThreeRoomMaze, convert_observation, observation
-from drs_torchrl.learners import DemoDiscriminatorLearner, DrSLearner, OfflineClassifierLearner, SuccessClassifierLearner
+from drs_torchrl.learners import (
+    DemoDiscriminatorLearner,
+    DrSLearner,
+    OfflineClassifierLearner,
+    SuccessClassifierLearner,
+)
 from drs_torchrl.maze_analysis import (  # noqa: F401 (re-exported: the maze's analysis and report)
     MazeConfigError,
     all_state_actions,
@@ -93,8 +99,16 @@ LEARNED = ("drs", *CLASSIFIERS)  # what phase=learn can learn
 REWARDS = ("drs", "sparse", "semi_sparse", "dense", *CLASSIFIERS, "gail_stages")
 REWARD_INPUTS = ("state_action", "next_state")  # R(s, a) as the appendix's tabular analysis, or R(s') as Sec. 4.3
 FAMILY = "three_room_maze"
-RB_KEYS = ["observation", "action", ("next", "observation"), ("next", "reward"), ("next", "done"),
-           ("next", "terminated"), ("next", "truncated"), ("next", "stage")]
+RB_KEYS = [
+    "observation",
+    "action",
+    ("next", "observation"),
+    ("next", "reward"),
+    ("next", "done"),
+    ("next", "terminated"),
+    ("next", "truncated"),
+    ("next", "stage"),
+]
 # n-step targets: whether the observation a window ends on is terminal (see terminal_at_window_end)
 TERMINAL_AT_OBS = ("next", "terminal_obs")
 
@@ -167,8 +181,13 @@ class StateActionReward(Transform):
         return next_tensordict
 
 
-def sa_trajectory(episode: TensorDictBase, stage_key: str = "stage", obs_coords: str | None = None,
-                  reward_coords: str | None = None, next_state: bool = False) -> TensorDict:
+def sa_trajectory(
+    episode: TensorDictBase,
+    stage_key: str = "stage",
+    obs_coords: str | None = None,
+    reward_coords: str | None = None,
+    next_state: bool = False,
+) -> TensorDict:
     """An episode as :meth:`StageBuffers.add_trajectory` reads it: per step, the pair ``(s, a)``
     (or ``s'`` alone with ``next_state``) and the stage of ``s'``, under ``"next"``; observations
     re-encoded from ``obs_coords`` to ``reward_coords`` when both are given."""
@@ -176,22 +195,40 @@ def sa_trajectory(episode: TensorDictBase, stage_key: str = "stage", obs_coords:
     if obs_coords is not None and reward_coords is not None:
         obs = convert_observation(obs, obs_coords, reward_coords)
     inner = TensorDict(
-        {"observation": obs, "action": episode.get("action").to(torch.float32),
-         stage_key: episode.get(("next", stage_key))},
+        {
+            "observation": obs,
+            "action": episode.get("action").to(torch.float32),
+            stage_key: episode.get(("next", stage_key)),
+        },
         batch_size=episode.batch_size,
     )
     return TensorDict({"next": inner}, batch_size=episode.batch_size)
 
 
 # ----------------------------------------------------------------------------- building blocks
-def make_env(map_name: str, num_envs: int, max_steps: int, seed: int, reward_name: str, coords: str = "onehot",
-             drs: DrSReward | None = None, dense_coef: float = 1.0, reward_scale: float = 1.0) -> TransformedEnv:
+def make_env(
+    map_name: str,
+    num_envs: int,
+    max_steps: int,
+    seed: int,
+    reward_name: str,
+    coords: str = "onehot",
+    drs: DrSReward | None = None,
+    dense_coef: float = 1.0,
+    reward_scale: float = 1.0,
+) -> TransformedEnv:
     """The maze with its stage label; ``semi_sparse`` writes ``k - 1`` as the env reward, ``dense``
     the env's distance-shaped reward (``dense_coef``), and a given DrS reward writes ``R(s, a)``.
     ``reward_scale`` != 1 appends TorchRL's ``RewardScaling`` (the reward the agent trains on)."""
     env = TransformedEnv(
-        ThreeRoomMaze(map_name, num_envs=num_envs, max_steps=max_steps, seed=seed, coords=coords,
-                      dense_coef=dense_coef if reward_name == "dense" else 0.0),
+        ThreeRoomMaze(
+            map_name,
+            num_envs=num_envs,
+            max_steps=max_steps,
+            seed=seed,
+            coords=coords,
+            dense_coef=dense_coef if reward_name == "dense" else 0.0,
+        ),
         StageIndicator(["success"], indicators_key=None),
     )
     if reward_name == "semi_sparse":  # scaled here: TorchRL's RewardScaling refuses its bounded reward spec
@@ -204,7 +241,12 @@ def make_env(map_name: str, num_envs: int, max_steps: int, seed: int, reward_nam
 
 
 def make_qnet(cfg: DictConfig, action_spec) -> QValueActor:
-    net = MLP(in_features=OBS_DIMS[cfg.coords], out_features=len(ACTIONS), num_cells=list(cfg.dqn.hidden), activation_class=torch.nn.ReLU)
+    net = MLP(
+        in_features=OBS_DIMS[cfg.coords],
+        out_features=len(ACTIONS),
+        num_cells=list(cfg.dqn.hidden),
+        activation_class=torch.nn.ReLU,
+    )
     return QValueActor(net, in_keys=["observation"], spec=action_spec)
 
 
@@ -219,7 +261,9 @@ def evaluate(actor, env: TransformedEnv) -> dict[str, float]:
     return {"eval_success": float(success.float().mean()), "eval_length": float((first + 1).float().mean())}
 
 
-def demo_episodes(map_name: str, n: int, seed: int, coords: str = "onehot", next_state: bool = False) -> list[TensorDict]:
+def demo_episodes(
+    map_name: str, n: int, seed: int, coords: str = "onehot", next_state: bool = False
+) -> list[TensorDict]:
     """``n`` shortest-path episodes on a map (Algorithm 1, line 3: optional demonstrations for the
     success buffer), from random bottom-room starts to random top-room goals. Per step the
     observation of ``s`` (of ``s'`` with ``next_state``), the action and the stage of ``s'``."""
@@ -242,7 +286,17 @@ def demo_episodes(map_name: str, n: int, seed: int, coords: str = "onehot", next
             s = t
         stage = torch.zeros(len(obs), 1, dtype=torch.long)
         stage[-1] = 1
-        out.append(TensorDict({"next": TensorDict({"observation": torch.stack(obs), "action": torch.stack(acts), "stage": stage}, batch_size=[len(obs)])}, batch_size=[len(obs)]))
+        out.append(
+            TensorDict(
+                {
+                    "next": TensorDict(
+                        {"observation": torch.stack(obs), "action": torch.stack(acts), "stage": stage},
+                        batch_size=[len(obs)],
+                    )
+                },
+                batch_size=[len(obs)],
+            )
+        )
     return out
 
 
@@ -254,37 +308,68 @@ def validate(cfg: DictConfig) -> None:
     checks = [
         (cfg.phase in ("learn", "reuse", "report"), f"phase must be learn, reuse or report, got {cfg.phase!r}"),
         (cfg.reward.name in REWARDS, f"reward.name must be one of {REWARDS}, got {cfg.reward.name!r}"),
-        (cfg.phase != "learn" or cfg.reward.name in LEARNED,
-         f"phase=learn learns one of {LEARNED} (static baselines, and gail_stages, run with phase=reuse)"),
+        (
+            cfg.phase != "learn" or cfg.reward.name in LEARNED,
+            f"phase=learn learns one of {LEARNED} (static baselines, and gail_stages, run with phase=reuse)",
+        ),
         (cfg.phase != "learn" or not cfg.reward.checkpoint, "reward.checkpoint is for phase=reuse"),
-        (cfg.phase != "reuse" or cfg.reward.name not in (*LEARNED, "gail_stages") or bool(cfg.reward.checkpoint),
-         f"phase=reuse with reward.name={cfg.reward.name} needs reward.checkpoint=PATH (a reward.pt written by phase=learn"
-         f"{' reward.name=gail' if cfg.reward.name == 'gail_stages' else ''})"),
-        (cfg.reward.name not in (*CLASSIFIERS, "gail_stages") or cfg.reward.get("coords") in (None, cfg.coords),
-         "the classifier baselines read the agent's own observation: leave reward.coords=null"),
-        (cfg.phase != "learn" or cfg.reward.name not in ("oril", "gail") or cfg.demos > 0,
-         f"reward.name={cfg.reward.name} learns from demonstrations: set demos > 0"),
+        (
+            cfg.phase != "reuse" or cfg.reward.name not in (*LEARNED, "gail_stages") or bool(cfg.reward.checkpoint),
+            f"phase=reuse with reward.name={cfg.reward.name} needs reward.checkpoint=PATH (a reward.pt written by phase=learn"
+            f"{' reward.name=gail' if cfg.reward.name == 'gail_stages' else ''})",
+        ),
+        (
+            cfg.reward.name not in (*CLASSIFIERS, "gail_stages") or cfg.reward.get("coords") in (None, cfg.coords),
+            "the classifier baselines read the agent's own observation: leave reward.coords=null",
+        ),
+        (
+            cfg.phase != "learn" or cfg.reward.name not in ("oril", "gail") or cfg.demos > 0,
+            f"reward.name={cfg.reward.name} learns from demonstrations: set demos > 0",
+        ),
         (cfg.map is None or cfg.map in GATES, f"map must be null or one of {sorted(GATES)}, got {cfg.map!r}"),
-        (cfg.total_frames > 0 and cfg.num_envs > 0 and cfg.max_steps > 0, "total_frames, num_envs and max_steps must be > 0"),
-        (cfg.dqn.frames_per_batch % cfg.num_envs == 0, f"dqn.frames_per_batch ({cfg.dqn.frames_per_batch}) must be a multiple of num_envs ({cfg.num_envs})"),
+        (
+            cfg.total_frames > 0 and cfg.num_envs > 0 and cfg.max_steps > 0,
+            "total_frames, num_envs and max_steps must be > 0",
+        ),
+        (
+            cfg.dqn.frames_per_batch % cfg.num_envs == 0,
+            f"dqn.frames_per_batch ({cfg.dqn.frames_per_batch}) must be a multiple of num_envs ({cfg.num_envs})",
+        ),
         (cfg.dqn.utd > 0 and cfg.dqn.batch_size > 0, "dqn.utd and dqn.batch_size must be > 0"),
         (0 < cfg.dqn.gamma <= 1, "dqn.gamma must be in (0, 1]"),
         (cfg.dqn.n_steps >= 1, "dqn.n_steps must be >= 1"),
-        (cfg.dqn.get("reward_scale", 1.0) > 0, "dqn.reward_scale must be > 0 (it multiplies the reward the agent trains on)"),
+        (
+            cfg.dqn.get("reward_scale", 1.0) > 0,
+            "dqn.reward_scale must be > 0 (it multiplies the reward the agent trains on)",
+        ),
         (cfg.eval.interval > 0 and cfg.eval.episodes > 0, "eval.interval and eval.episodes must be > 0"),
         (cfg.demos >= 0, "demos must be >= 0"),
-        (cfg.reward.get("input", "state_action") in REWARD_INPUTS,
-         f"reward.input must be one of {REWARD_INPUTS}, got {cfg.reward.get('input')!r}"),
-        (cfg.reward.get("positives", "all") in ("all", "demos"), f"reward.positives must be all or demos, got {cfg.reward.get('positives')!r}"),
-        (cfg.reward.get("positives", "all") != "demos" or cfg.demos > 0,
-         "reward.positives=demos makes the demonstrations the only positives: set demos > 0"),
-        (cfg.reward.get("reuse_alpha") is None or 0 <= float(cfg.reward.reuse_alpha) < 0.5,
-         "reward.reuse_alpha must be null or in [0, 0.5) (0 keeps only DrS's constant part)"),
+        (
+            cfg.reward.get("input", "state_action") in REWARD_INPUTS,
+            f"reward.input must be one of {REWARD_INPUTS}, got {cfg.reward.get('input')!r}",
+        ),
+        (
+            cfg.reward.get("positives", "all") in ("all", "demos"),
+            f"reward.positives must be all or demos, got {cfg.reward.get('positives')!r}",
+        ),
+        (
+            cfg.reward.get("positives", "all") != "demos" or cfg.demos > 0,
+            "reward.positives=demos makes the demonstrations the only positives: set demos > 0",
+        ),
+        (
+            cfg.reward.get("reuse_alpha") is None or 0 <= float(cfg.reward.reuse_alpha) < 0.5,
+            "reward.reuse_alpha must be null or in [0, 0.5) (0 keeps only DrS's constant part)",
+        ),
         (cfg.coords in OBS_DIMS, f"coords must be one of {sorted(OBS_DIMS)}, got {cfg.coords!r}"),
-        (cfg.reward.get("coords") in (None, *OBS_DIMS), f"reward.coords must be null or one of {sorted(OBS_DIMS)}, got {cfg.reward.get('coords')!r}"),
-        (_convertible(cfg.coords, cfg.reward.get("coords") or cfg.coords),
-         f"a reward on coords={cfg.reward.get('coords')} cannot read the agent's coords={cfg.coords} observations "
-         "(absolute positions cannot be recovered from relative ones): use reward.coords=relative, patch or null"),
+        (
+            cfg.reward.get("coords") in (None, *OBS_DIMS),
+            f"reward.coords must be null or one of {sorted(OBS_DIMS)}, got {cfg.reward.get('coords')!r}",
+        ),
+        (
+            _convertible(cfg.coords, cfg.reward.get("coords") or cfg.coords),
+            f"a reward on coords={cfg.reward.get('coords')} cannot read the agent's coords={cfg.coords} observations "
+            "(absolute positions cannot be recovered from relative ones): use reward.coords=relative, patch or null",
+        ),
     ]
     bad = [msg for ok, msg in checks if not ok]
     if bad:
@@ -302,8 +387,10 @@ def check_run_dir(run_dir: Path, overwrite: bool) -> None:
     if not found:
         return
     if not overwrite:
-        raise MazeConfigError(f"{run_dir} already holds a run ({', '.join(found)}); choose another hydra.run.dir, "
-                              f"or replace it with overwrite=true")
+        raise MazeConfigError(
+            f"{run_dir} already holds a run ({', '.join(found)}); choose another hydra.run.dir, "
+            f"or replace it with overwrite=true"
+        )
     for f in (*RUN_FILES, "reward_map.png"):
         (run_dir / f).unlink(missing_ok=True)
     shutil.rmtree(run_dir / "tb", ignore_errors=True)
@@ -322,11 +409,19 @@ def make_reward(cfg: DictConfig, map_name: str, learn: bool) -> tuple[DrSLearner
     if not learn:
         drs = DrSReward.from_checkpoint(r.checkpoint)
         meta = drs.metadata
-        if meta.get("family") != FAMILY or drs.num_stages != 1 or drs.reward_in_keys not in (["observation", "action"], ["observation"]):
-            raise MazeConfigError(f"{r.checkpoint} is not a maze reward (family {meta.get('family')!r}, inputs {drs.reward_in_keys})")
+        if (
+            meta.get("family") != FAMILY
+            or drs.num_stages != 1
+            or drs.reward_in_keys not in (["observation", "action"], ["observation"])
+        ):
+            raise MazeConfigError(
+                f"{r.checkpoint} is not a maze reward (family {meta.get('family')!r}, inputs {drs.reward_in_keys})"
+            )
         if not _convertible(cfg.coords, reward_coords(drs)):
-            raise MazeConfigError(f"{r.checkpoint} was learned with coords={reward_coords(drs)}, which this run's "
-                                  f"coords={cfg.coords} observations cannot be re-encoded to; use coords={reward_coords(drs)}")
+            raise MazeConfigError(
+                f"{r.checkpoint} was learned with coords={reward_coords(drs)}, which this run's "
+                f"coords={cfg.coords} observations cannot be re-encoded to; use coords={reward_coords(drs)}"
+            )
         if r.get("reuse_offset") is not None:  # shift the frozen reward (the learned term is unchanged)
             drs.offset = float(r.reuse_offset)
         if r.get("reuse_alpha") is not None:  # reweight the learned term; 0 leaves DrS's constant part (the control)
@@ -335,14 +430,40 @@ def make_reward(cfg: DictConfig, map_name: str, learn: bool) -> tuple[DrSLearner
     rc = r.get("coords") or cfg.coords
     on_next = r.get("input", "state_action") == "next_state"
     shapes = {"observation": OBS_DIMS[rc]} if on_next else {"observation": OBS_DIMS[rc], "action": len(ACTIONS)}
-    drs = DrSReward(1, list(shapes), shapes, formula=r.formula, alpha=r.alpha, offset=r.offset, hidden=list(r.hidden),
-                    activation=r.activation,
-                    metadata={"family": FAMILY, "map": map_name, "reward_on": "next_state" if on_next else "state_action",
-                              "coords": rc, "seed": int(cfg.seed), "positives": r.get("positives", "all")})
-    demos = [ep.get("next") for ep in demo_episodes(map_name, int(cfg.demos), int(cfg.seed), rc, on_next)] if cfg.demos else []
-    learner = DrSLearner(drs, capacity=r.stage_buffer_size, batch_size=r.disc.batch_size, lr=r.disc.lr,
-                         updates_per_rl_update=r.disc.updates_per_dqn_update, early_stop_threshold=r.disc.early_stop_threshold,
-                         window=r.disc.window, demos=demos, file_successes=r.get("positives", "all") == "all")
+    drs = DrSReward(
+        1,
+        list(shapes),
+        shapes,
+        formula=r.formula,
+        alpha=r.alpha,
+        offset=r.offset,
+        hidden=list(r.hidden),
+        activation=r.activation,
+        metadata={
+            "family": FAMILY,
+            "map": map_name,
+            "reward_on": "next_state" if on_next else "state_action",
+            "coords": rc,
+            "seed": int(cfg.seed),
+            "positives": r.get("positives", "all"),
+        },
+    )
+    demos = (
+        [ep.get("next") for ep in demo_episodes(map_name, int(cfg.demos), int(cfg.seed), rc, on_next)]
+        if cfg.demos
+        else []
+    )
+    learner = DrSLearner(
+        drs,
+        capacity=r.stage_buffer_size,
+        batch_size=r.disc.batch_size,
+        lr=r.disc.lr,
+        updates_per_rl_update=r.disc.updates_per_dqn_update,
+        early_stop_threshold=r.disc.early_stop_threshold,
+        window=r.disc.window,
+        demos=demos,
+        file_successes=r.get("positives", "all") == "all",
+    )
     return learner, drs
 
 
@@ -355,31 +476,74 @@ def make_classifier_reward(cfg: DictConfig, map_name: str, learn: bool):
         rew = load_reward(r.checkpoint)
         want = "gail" if r.name == "gail_stages" else r.name
         if not isinstance(rew, ClassifierReward) or rew.metadata.get("family") != FAMILY or rew.method != want:
-            raise MazeConfigError(f"{r.checkpoint} is not a maze {want} reward (family {rew.metadata.get('family')!r}, "
-                                  f"method {getattr(rew, 'method', 'drs')!r}): reward.name must match the phase-1 run's")
+            raise MazeConfigError(
+                f"{r.checkpoint} is not a maze {want} reward (family {rew.metadata.get('family')!r}, "
+                f"method {getattr(rew, 'method', 'drs')!r}): reward.name must match the phase-1 run's"
+            )
         if r.name == "gail_stages":
             rew.classifier_weight, rew.stage_weight = float(c.classifier_weight), float(c.stage_weight)
         return None, rew.requires_grad_(False)
     use_action = (r.name == "gail") if c.use_action is None else bool(c.use_action)
     output, offset = CLASSIFIERS[r.name]
-    rew = ClassifierReward(["observation"], {"observation": OBS_DIMS[cfg.coords]}, 1, use_action=use_action,
-                           action_dim=len(ACTIONS) if use_action else None, output=output, offset=offset, hidden=list(c.hidden),
-                           activation=c.activation, method=r.name,
-                           metadata={"family": FAMILY, "map": map_name, "reward_on": "state_action" if use_action else "next_state",
-                                     "coords": cfg.coords, "seed": int(cfg.seed)})
-    common = dict(lr=float(c.lr), batch_size=int(c.batch_size), updates_per_rl_update=int(r.disc.updates_per_dqn_update))
+    rew = ClassifierReward(
+        ["observation"],
+        {"observation": OBS_DIMS[cfg.coords]},
+        1,
+        use_action=use_action,
+        action_dim=len(ACTIONS) if use_action else None,
+        output=output,
+        offset=offset,
+        hidden=list(c.hidden),
+        activation=c.activation,
+        method=r.name,
+        metadata={
+            "family": FAMILY,
+            "map": map_name,
+            "reward_on": "state_action" if use_action else "next_state",
+            "coords": cfg.coords,
+            "seed": int(cfg.seed),
+        },
+    )
+    common = dict(
+        lr=float(c.lr), batch_size=int(c.batch_size), updates_per_rl_update=int(r.disc.updates_per_dqn_update)
+    )
     s_eps = demo_episodes(map_name, int(cfg.demos), int(cfg.seed), cfg.coords)  # observations of s ...
     n_eps = demo_episodes(map_name, int(cfg.demos), int(cfg.seed), cfg.coords, next_state=True)  # ... and of s'
-    if r.name == "vice_raq":  # the oracle's success label for every visited state; the demos' goal states seed the positives
-        goals = torch.stack([n.get(("next", "observation"))[-1] for n in n_eps]) if n_eps else torch.zeros(0, OBS_DIMS[cfg.coords])
-        return SuccessClassifierLearner(rew, success_key="success", capacity=int(c.buffer_size),
-                                        success_states=TensorDict({"observation": goals}, batch_size=[len(goals)]), **common), rew
-    demos = [TensorDict({"observation": n.get(("next", "observation")), "action": s.get(("next", "action")),
-                         "state": TensorDict({"observation": s.get(("next", "observation"))}, batch_size=s.shape)}, batch_size=s.shape)
-             for s, n in zip(s_eps, n_eps)]
+    if (
+        r.name == "vice_raq"
+    ):  # the oracle's success label for every visited state; the demos' goal states seed the positives
+        goals = (
+            torch.stack([n.get(("next", "observation"))[-1] for n in n_eps])
+            if n_eps
+            else torch.zeros(0, OBS_DIMS[cfg.coords])
+        )
+        return SuccessClassifierLearner(
+            rew,
+            success_key="success",
+            capacity=int(c.buffer_size),
+            success_states=TensorDict({"observation": goals}, batch_size=[len(goals)]),
+            **common,
+        ), rew
+    demos = [
+        TensorDict(
+            {
+                "observation": n.get(("next", "observation")),
+                "action": s.get(("next", "action")),
+                "state": TensorDict({"observation": s.get(("next", "observation"))}, batch_size=s.shape),
+            },
+            batch_size=s.shape,
+        )
+        for s, n in zip(s_eps, n_eps)
+    ]
     if r.name == "oril":  # demonstration states vs random-walk states, offline (prepare())
-        return OfflineClassifierLearner(rew, demos=[d.select("observation") for d in demos], capacity=int(c.buffer_size),
-                                        random_episodes=int(c.random_episodes), offline_updates=int(c.offline_updates), **common), rew
+        return OfflineClassifierLearner(
+            rew,
+            demos=[d.select("observation") for d in demos],
+            capacity=int(c.buffer_size),
+            random_episodes=int(c.random_episodes),
+            offline_updates=int(c.offline_updates),
+            **common,
+        ), rew
     return DemoDiscriminatorLearner(rew, demos=demos, **common), rew
 
 
@@ -388,23 +552,35 @@ def make_replay_buffer(cfg: DictConfig, drs: DrSReward | None) -> ReplayBuffer:
     whose DrS reward is recomputed from the current discriminator at every sample (Algorithm 1)."""
     d = cfg.dqn
     if int(d.n_steps) > 1:
-        return ReplayBuffer(storage=LazyTensorStorage(int(d.buffer_size), ndim=2), batch_size=int(d.batch_size),
-                            transform=MultiStepTransform(int(d.n_steps), float(d.gamma)))
+        return ReplayBuffer(
+            storage=LazyTensorStorage(int(d.buffer_size), ndim=2),
+            batch_size=int(d.batch_size),
+            transform=MultiStepTransform(int(d.n_steps), float(d.gamma)),
+        )
     scale = float(d.get("reward_scale", 1.0))
-    return ReplayBuffer(storage=LazyTensorStorage(int(d.buffer_size)), batch_size=int(d.batch_size),
-                        transform=StateActionReward(drs, cfg.coords, scale) if drs is not None else None)
+    return ReplayBuffer(
+        storage=LazyTensorStorage(int(d.buffer_size)),
+        batch_size=int(d.batch_size),
+        transform=StateActionReward(drs, cfg.coords, scale) if drs is not None else None,
+    )
 
 
 def make_exploration(cfg: DictConfig, action_spec) -> EGreedyModule:
     d = cfg.dqn
-    return EGreedyModule(action_spec, eps_init=d.eps_init, eps_end=d.eps_end,
-                         annealing_num_steps=max(1, int(d.eps_anneal_frac * cfg.total_frames)))
+    return EGreedyModule(
+        action_spec,
+        eps_init=d.eps_init,
+        eps_end=d.eps_end,
+        annealing_num_steps=max(1, int(d.eps_anneal_frac * cfg.total_frames)),
+    )
 
 
 def make_dqn_loss(cfg: DictConfig, actor: QValueActor, action_spec):
     """TorchRL's ``DQNLoss`` (double DQN by default) with its target updater and Adam."""
     d = cfg.dqn
-    loss = DQNLoss(actor, action_space=action_spec, delay_value=True, double_dqn=bool(d.double_dqn), loss_function=d.loss_function)
+    loss = DQNLoss(
+        actor, action_space=action_spec, delay_value=True, double_dqn=bool(d.double_dqn), loss_function=d.loss_function
+    )
     loss.make_value_estimator(ValueEstimators.TD0, gamma=float(d.gamma))
     return loss, instantiate(d.target_update)(loss), torch.optim.Adam(loss.parameters(), lr=float(d.lr))
 
@@ -426,15 +602,29 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
     OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
     n_steps, scale = int(d.n_steps), float(d.get("reward_scale", 1.0))
     # n-step sums are formed when transitions are stored, so then the env writes R(s, a) (see the module docstring)
-    env = make_env(map_name, cfg.num_envs, cfg.max_steps, cfg.seed, cfg.reward.name, cfg.coords, drs if n_steps > 1 else None,
-                   float(cfg.reward.dense_coef), scale)
+    env = make_env(
+        map_name,
+        cfg.num_envs,
+        cfg.max_steps,
+        cfg.seed,
+        cfg.reward.name,
+        cfg.coords,
+        drs if n_steps > 1 else None,
+        float(cfg.reward.dense_coef),
+        scale,
+    )
     eval_env = make_env(map_name, cfg.eval.episodes, cfg.max_steps, cfg.seed + 10_000, cfg.reward.name, cfg.coords)
     actor = make_qnet(cfg, env.action_spec)
     explore = make_exploration(cfg, env.action_spec)
     rb = make_replay_buffer(cfg, drs)
     loss, target, opt = make_dqn_loss(cfg, actor, env.action_spec)
-    collector = Collector(env, TensorDictSequential(actor, explore), frames_per_batch=int(d.frames_per_batch),
-                          total_frames=int(cfg.total_frames), auto_register_policy_transforms=False)
+    collector = Collector(
+        env,
+        TensorDictSequential(actor, explore),
+        frames_per_batch=int(d.frames_per_batch),
+        total_frames=int(cfg.total_frames),
+        auto_register_policy_transforms=False,
+    )
     log = _MazeLog(cfg, run_dir, actor, eval_env, explore, learner)
     assembler, frames, owed = TrajectoryAssembler(), 0, 0.0
     rc = reward_coords(drs) if drs is not None else None
@@ -454,8 +644,13 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
             if agent_rb is not None:
                 agent_rb.extend(batch.reshape(-1).select("observation", "action", ("next", "observation")))
             if isinstance(learner, DrSLearner):  # Algorithm 1: every finished episode into the stage buffers
-                learner.observe(batch, [sa_trajectory(ep, obs_coords=cfg.coords, reward_coords=rc, next_state=reads_next_state(drs))
-                                        for ep in episodes])
+                learner.observe(
+                    batch,
+                    [
+                        sa_trajectory(ep, obs_coords=cfg.coords, reward_coords=rc, next_state=reads_next_state(drs))
+                        for ep in episodes
+                    ],
+                )
             elif learner is not None:  # VICE-RAQ labels every visited state; ORIL and GAIL need nothing here
                 learner.observe(batch, episodes)
             explore.step(batch.numel())
@@ -484,7 +679,14 @@ class _MazeLog:
     reward checkpoint and figure."""
 
     def __init__(self, cfg, run_dir: Path, actor, eval_env, explore, learner):
-        self.cfg, self.run_dir, self.actor, self.eval_env, self.explore, self.learner = cfg, run_dir, actor, eval_env, explore, learner
+        self.cfg, self.run_dir, self.actor, self.eval_env, self.explore, self.learner = (
+            cfg,
+            run_dir,
+            actor,
+            eval_env,
+            explore,
+            learner,
+        )
         self.logger = RunLogger(run_dir, tensorboard=bool(cfg.get("tensorboard", True)), csv_files=True)
         self.recent: deque = deque(maxlen=100)
         self.window, self.rows, self.updates, self.next_eval = _Window(), [], 0, 0
@@ -497,24 +699,39 @@ class _MazeLog:
     def update(self, dqn_out, sample, disc_out) -> None:
         self.updates += 1
         r1 = sample.get(("next", "original_reward"), None)  # n-step windows keep the one-step reward here
-        self.window.add(dqn_loss=float(dqn_out["loss"].detach()), reward_mean=float((r1 if r1 is not None else sample.get(("next", "reward"))).mean()))
+        self.window.add(
+            dqn_loss=float(dqn_out["loss"].detach()),
+            reward_mean=float((r1 if r1 is not None else sample.get(("next", "reward"))).mean()),
+        )
         if disc_out is not None:  # DrS: per-stage keys (one stage here); a classifier: loss and accuracy
-            self.window.add(disc_loss=float(disc_out.get("loss_0", disc_out.get("loss"))),
-                            disc_accuracy=float(disc_out.get("accuracy_0", disc_out.get("accuracy"))))
+            self.window.add(
+                disc_loss=float(disc_out.get("loss_0", disc_out.get("loss"))),
+                disc_accuracy=float(disc_out.get("accuracy_0", disc_out.get("accuracy"))),
+            )
 
     def maybe_row(self, frames: int, force: bool = False) -> None:
         if frames < self.next_eval and not force:
             return
         self.next_eval += int(self.cfg.eval.interval)
-        row = {"frames": frames, "wall_s": round(time.perf_counter() - self.t0, 2), "updates": self.updates,
-               "epsilon": float(self.explore.eps), **evaluate(self.actor, self.eval_env),
-               "train_success": float(np.mean([s for s, _ in self.recent])) if self.recent else float("nan"),
-               "train_length": float(np.mean([n for _, n in self.recent])) if self.recent else float("nan"),
-               "dqn_loss": float("nan"), "reward_mean": float("nan"), **self.window.flush()}
+        row = {
+            "frames": frames,
+            "wall_s": round(time.perf_counter() - self.t0, 2),
+            "updates": self.updates,
+            "epsilon": float(self.explore.eps),
+            **evaluate(self.actor, self.eval_env),
+            "train_success": float(np.mean([s for s, _ in self.recent])) if self.recent else float("nan"),
+            "train_length": float(np.mean([n for _, n in self.recent])) if self.recent else float("nan"),
+            "dqn_loss": float("nan"),
+            "reward_mean": float("nan"),
+            **self.window.flush(),
+        }
         if isinstance(self.learner, DrSLearner):
             counts = self.learner.stage_buffers.stage_counts()
-            row.update(success_buffer=int(counts[1]), failure_buffer=int(counts[0]),
-                       disc_active=float(self.learner.loss.training_mask()[0]))
+            row.update(
+                success_buffer=int(counts[1]),
+                failure_buffer=int(counts[0]),
+                disc_active=float(self.learner.loss.training_mask()[0]),
+            )
         elif self.learner is not None:
             row.update(self.learner.log_row())
         if self.learner is not None:
@@ -524,8 +741,11 @@ class _MazeLog:
         self.logger.log("train", frames, row)
         self.rows.append(row)
         if self.cfg.verbose:
-            print(f"[{row['wall_s']:7.1f}s] frames {frames:7d}  eval success {row['eval_success']:.2f}  train success "
-                  f"{row['train_success']:.2f}  eps {row['epsilon']:.2f}", flush=True)
+            print(
+                f"[{row['wall_s']:7.1f}s] frames {frames:7d}  eval success {row['eval_success']:.2f}  train success "
+                f"{row['train_success']:.2f}  eps {row['epsilon']:.2f}",
+                flush=True,
+            )
 
     def close(self) -> None:
         self.logger.close()
@@ -533,14 +753,22 @@ class _MazeLog:
     def finish(self, frames: int, map_name: str, drs, learner) -> dict:
         cfg, wall = self.cfg, time.perf_counter() - self.t0
         summary = {
-            "phase": cfg.phase, "map": map_name, "reward": cfg.reward.name, "reward_scale": float(cfg.dqn.get("reward_scale", 1.0)),
-            "seed": int(cfg.seed), "code": code_version(),
+            "phase": cfg.phase,
+            "map": map_name,
+            "reward": cfg.reward.name,
+            "reward_scale": float(cfg.dqn.get("reward_scale", 1.0)),
+            "seed": int(cfg.seed),
+            "code": code_version(),
             "reward_input": ("next_state" if reads_next_state(drs) else "state_action") if drs is not None else None,
             "reward_alpha": getattr(drs, "alpha", None),
             "reward_coords": reward_coords(drs) if (drs is not None and reward_coords(drs) != cfg.coords) else None,
-            "frames": frames, "updates": self.updates, "wall_time_s": round(wall, 1),
-            "cpu_time_s": round(time.process_time() - self.cpu0, 1), "env_steps_per_s": round(frames / wall, 1),
-            "final_eval_success": self.rows[-1]["eval_success"], "final_eval_length": self.rows[-1]["eval_length"],
+            "frames": frames,
+            "updates": self.updates,
+            "wall_time_s": round(wall, 1),
+            "cpu_time_s": round(time.process_time() - self.cpu0, 1),
+            "env_steps_per_s": round(frames / wall, 1),
+            "final_eval_success": self.rows[-1]["eval_success"],
+            "final_eval_length": self.rows[-1]["eval_length"],
             "mean_eval_success_last3": float(np.mean([r["eval_success"] for r in self.rows[-3:]])),
         }
         torch.save(self.actor.state_dict(), self.run_dir / "policy.pt")
@@ -553,7 +781,9 @@ class _MazeLog:
                 summary.update(learner.summary())
         if drs is not None:
             maps = ("train", map_name if map_name != "train" else "test")
-            summary["reward_map"] = str(plot_reward_map(drs, self.run_dir / "reward_map.png", tuple(cfg.plot_goal), maps))
+            summary["reward_map"] = str(
+                plot_reward_map(drs, self.run_dir / "reward_map.png", tuple(cfg.plot_goal), maps)
+            )
             summary["reward_diagnostics"] = {m: reward_diagnostics(drs, m, cfg.max_steps) for m in GATES}
         (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
         return summary
@@ -583,7 +813,9 @@ def _conf_dir() -> str:
     for parent in Path(__file__).resolve().parents:
         if (parent / "conf" / "maze.yaml").is_file():
             return str(parent / "conf")
-    raise FileNotFoundError("cannot find drs-torchrl's conf/ directory (conf/maze.yaml); set DRS_CONF_DIR=/path/to/conf")
+    raise FileNotFoundError(
+        "cannot find drs-torchrl's conf/ directory (conf/maze.yaml); set DRS_CONF_DIR=/path/to/conf"
+    )
 
 
 @console_script("drs-maze")  # DRS_LIBRARY_MESSAGES=1 shows TorchRL's storage notices again
@@ -601,8 +833,10 @@ def main(cfg: DictConfig) -> None:
     except (MazeConfigError, ValueError, FileNotFoundError) as exc:
         print(f"drs-maze: error: {exc}", file=sys.stderr)
         sys.exit(2)
-    print(f"drs-maze: {s['phase']} on the {s['map']} map with the {s['reward']} reward: {s['frames']} env steps in "
-          f"{s['wall_time_s']:.0f}s; greedy eval success {s['final_eval_success']:.2f}; run dir {run_dir}")
+    print(
+        f"drs-maze: {s['phase']} on the {s['map']} map with the {s['reward']} reward: {s['frames']} env steps in "
+        f"{s['wall_time_s']:.0f}s; greedy eval success {s['final_eval_success']:.2f}; run dir {run_dir}"
+    )
     if "reward_checkpoint" in s:
         print(f"  reward checkpoint: {s['reward_checkpoint']}")
 

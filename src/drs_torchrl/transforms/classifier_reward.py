@@ -16,6 +16,7 @@ end on success, so a reward of at most 0 makes reaching success sooner worth mor
 ``[-10, 10]``; ``"sigmoid"``, ``D`` (ORIL's reward), plus ``offset`` (-1: in ``[-1, 0]``).
 An untrained classifier contributes its value at logit 0.
 """
+
 from __future__ import annotations
 
 import os
@@ -116,7 +117,11 @@ class ClassifierReward(Transform):
         self.reward_in_keys = in_keys
         self.in_shapes = {k: int(in_shapes[k]) for k in in_keys}
         self.num_stages, self.stage_key, self.reward_key = int(num_stages), stage_key, reward_key
-        self.use_action, self.action_dim, self.action_key = bool(use_action), (int(action_dim) if use_action else None), action_key
+        self.use_action, self.action_dim, self.action_key = (
+            bool(use_action),
+            (int(action_dim) if use_action else None),
+            action_key,
+        )
         self.output, self.offset = output, float(offset)
         self.classifier_weight, self.stage_weight = float(classifier_weight), float(stage_weight)
         self.method = method
@@ -156,7 +161,9 @@ class ClassifierReward(Transform):
             r = r + self.stage_weight * (stage.to(r.dtype) - self.num_stages)
         return r
 
-    def reward_of(self, state: TensorDictBase, next_state: TensorDictBase, action: torch.Tensor | None = None) -> torch.Tensor:
+    def reward_of(
+        self, state: TensorDictBase, next_state: TensorDictBase, action: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """Reward of transitions ``(s, a, s')`` (``(*batch, 1)``), without gradients: ``D`` reads
         ``s'`` or ``(s, a)``; the stage term reads ``s'``."""
         with torch.no_grad():
@@ -174,7 +181,9 @@ class ClassifierReward(Transform):
         return self.reward_of(td, td)
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
-        next_tensordict.set(self.reward_key, self.reward_of(tensordict, next_tensordict, tensordict.get(self.action_key, None)))
+        next_tensordict.set(
+            self.reward_key, self.reward_of(tensordict, next_tensordict, tensordict.get(self.action_key, None))
+        )
         return next_tensordict
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -202,12 +211,23 @@ class ClassifierReward(Transform):
     def description(self) -> dict[str, Any]:
         c = self.classifier
         return {
-            "kind": "classifier", "method": self.method, "num_stages": self.num_stages,
-            "in_keys": list(self.reward_in_keys), "in_shapes": dict(self.in_shapes), "stage_key": self.stage_key,
-            "use_action": self.use_action, "action_dim": self.action_dim, "action_key": self.action_key,
-            "output": self.output, "offset": self.offset, "classifier_weight": self.classifier_weight,
-            "stage_weight": self.stage_weight, "hidden": list(c.hidden), "activation": c.activation,
-            "reward_key": self.reward_key, "metadata": dict(self.metadata),
+            "kind": "classifier",
+            "method": self.method,
+            "num_stages": self.num_stages,
+            "in_keys": list(self.reward_in_keys),
+            "in_shapes": dict(self.in_shapes),
+            "stage_key": self.stage_key,
+            "use_action": self.use_action,
+            "action_dim": self.action_dim,
+            "action_key": self.action_key,
+            "output": self.output,
+            "offset": self.offset,
+            "classifier_weight": self.classifier_weight,
+            "stage_weight": self.stage_weight,
+            "hidden": list(c.hidden),
+            "activation": c.activation,
+            "reward_key": self.reward_key,
+            "metadata": dict(self.metadata),
         }
 
     def save(self, path: str | os.PathLike, **extra_metadata) -> Path:
@@ -224,22 +244,47 @@ class ClassifierReward(Transform):
             raise RewardCheckpointError(f"{path} holds a {c.get('kind', 'drs')!r} reward, not a classifier reward")
         c.update({k: v for k, v in overrides.items() if v is not None})
         reward = cls(
-            c["in_keys"], c["in_shapes"], c["num_stages"], use_action=c["use_action"], action_dim=c["action_dim"],
-            action_key=c["action_key"], stage_key=c["stage_key"], output=c["output"], offset=c["offset"],
-            classifier_weight=c["classifier_weight"], stage_weight=c["stage_weight"], hidden=c["hidden"],
-            activation=c["activation"], reward_key=c["reward_key"], method=c["method"], metadata=c.get("metadata"),
+            c["in_keys"],
+            c["in_shapes"],
+            c["num_stages"],
+            use_action=c["use_action"],
+            action_dim=c["action_dim"],
+            action_key=c["action_key"],
+            stage_key=c["stage_key"],
+            output=c["output"],
+            offset=c["offset"],
+            classifier_weight=c["classifier_weight"],
+            stage_weight=c["stage_weight"],
+            hidden=c["hidden"],
+            activation=c["activation"],
+            reward_key=c["reward_key"],
+            method=c["method"],
+            metadata=c.get("metadata"),
         )
         load_checked(reward.classifier, payload["state_dict"], path)
         return reward.to(map_location)
 
-    def check_compatible(self, observation_spec, *, num_stages: int | None = None, family: str | None = None,
-                         action_spec=None) -> None:
-        problems = compatibility_problems(self.metadata, self.in_shapes, self.num_stages, self.stage_key, observation_spec,
-                                          num_stages=num_stages, family=family, action_spec=action_spec,
-                                          action_dim=self.action_dim)
+    def check_compatible(
+        self, observation_spec, *, num_stages: int | None = None, family: str | None = None, action_spec=None
+    ) -> None:
+        problems = compatibility_problems(
+            self.metadata,
+            self.in_shapes,
+            self.num_stages,
+            self.stage_key,
+            observation_spec,
+            num_stages=num_stages,
+            family=family,
+            action_spec=action_spec,
+            action_dim=self.action_dim,
+        )
         if problems:
-            raise RewardCheckpointError(f"the {self.method} reward does not fit this environment: " + "; ".join(problems))
+            raise RewardCheckpointError(
+                f"the {self.method} reward does not fit this environment: " + "; ".join(problems)
+            )
 
     def __repr__(self) -> str:
-        return (f"{type(self).__name__}(method={self.method!r}, in_keys={self.reward_in_keys}, use_action={self.use_action}, "
-                f"output={self.output!r}, stage_weight={self.stage_weight:.3g})")
+        return (
+            f"{type(self).__name__}(method={self.method!r}, in_keys={self.reward_in_keys}, use_action={self.use_action}, "
+            f"output={self.output!r}, stage_weight={self.stage_weight:.3g})"
+        )

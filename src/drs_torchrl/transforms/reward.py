@@ -12,6 +12,7 @@ Formulas (``formula=``):
     * ``"sum"``: the reward-formulation ablation of Appendix F.3, ``sum_k tanh(D_k(s'))``, which
       ignores the stage index (it does not keep the ordering guarantee).
 """
+
 from __future__ import annotations
 
 import os
@@ -46,7 +47,9 @@ class StageDiscriminators(nn.Module):
     in the authors' code), not the output of its random initialisation.
     """
 
-    def __init__(self, num_stages: int, in_features: int, hidden: Sequence[int] | int = (32,), activation: str = "sigmoid"):
+    def __init__(
+        self, num_stages: int, in_features: int, hidden: Sequence[int] | int = (32,), activation: str = "sigmoid"
+    ):
         super().__init__()
         if num_stages < 1:
             raise ValueError("num_stages must be >= 1")
@@ -138,9 +141,7 @@ class DrSReward(Transform):
         self.offset = float(offset)
         self.reward_key = reward_key
         self.metadata = dict(metadata or {})
-        self.discriminators = StageDiscriminators(
-            self.num_stages, sum(self.in_shapes.values()), hidden, activation
-        )
+        self.discriminators = StageDiscriminators(self.num_stages, sum(self.in_shapes.values()), hidden, activation)
 
     # ------------------------------------------------------------ reward math
     def features(self, td: TensorDictBase) -> torch.Tensor:
@@ -203,7 +204,9 @@ class DrSReward(Transform):
         shapes = {}
         for k in in_keys:
             if k not in observation_spec.keys(True, True):
-                raise KeyError(f"reward input {k!r} is not in the observation spec; it has {list(observation_spec.keys(True, True))}")
+                raise KeyError(
+                    f"reward input {k!r} is not in the observation spec; it has {list(observation_spec.keys(True, True))}"
+                )
             shapes[k] = int(observation_spec[k].shape[-1])
         return cls(num_stages, in_keys, shapes, **kwargs)
 
@@ -237,27 +240,48 @@ class DrSReward(Transform):
         """Load a reward saved by :meth:`save`; raises :class:`RewardCheckpointError` with the cause."""
         payload = read_reward_checkpoint(path, map_location)
         if payload["config"].get("kind", "drs") != "drs":
-            raise RewardCheckpointError(f"{path} holds a {payload['config']['kind']!r} reward, not a DrS reward; load it with load_reward()")
+            raise RewardCheckpointError(
+                f"{path} holds a {payload['config']['kind']!r} reward, not a DrS reward; load it with load_reward()"
+            )
         c = payload["config"]
         reward = cls(
-            c["num_stages"], c["in_keys"], c["in_shapes"], stage_key=c["stage_key"], formula=c["formula"],
-            alpha=c["alpha"], offset=c["offset"], hidden=c["hidden"], activation=c["activation"],
-            reward_key=c.get("reward_key", "reward"), metadata=c.get("metadata"),
+            c["num_stages"],
+            c["in_keys"],
+            c["in_shapes"],
+            stage_key=c["stage_key"],
+            formula=c["formula"],
+            alpha=c["alpha"],
+            offset=c["offset"],
+            hidden=c["hidden"],
+            activation=c["activation"],
+            reward_key=c.get("reward_key", "reward"),
+            metadata=c.get("metadata"),
         )
         load_checked(reward.discriminators, payload["state_dict"], path)
         return reward.to(map_location)
 
-    def check_compatible(self, observation_spec, *, num_stages: int | None = None, family: str | None = None,
-                         action_spec=None) -> None:
+    def check_compatible(
+        self, observation_spec, *, num_stages: int | None = None, family: str | None = None, action_spec=None
+    ) -> None:
         """Raise :class:`RewardCheckpointError` naming every difference between this reward and an env."""
-        problems = compatibility_problems(self.metadata, self.in_shapes, self.num_stages, self.stage_key,
-                                          observation_spec, num_stages=num_stages, family=family, action_spec=action_spec)
+        problems = compatibility_problems(
+            self.metadata,
+            self.in_shapes,
+            self.num_stages,
+            self.stage_key,
+            observation_spec,
+            num_stages=num_stages,
+            family=family,
+            action_spec=action_spec,
+        )
         if problems:
             raise RewardCheckpointError("the reward does not fit this environment: " + "; ".join(problems))
 
     def __repr__(self) -> str:
-        return (f"{type(self).__name__}(num_stages={self.num_stages}, in_keys={self.reward_in_keys}, "
-                f"formula={self.formula!r}, alpha={self.alpha:.4g})")
+        return (
+            f"{type(self).__name__}(num_stages={self.num_stages}, in_keys={self.reward_in_keys}, "
+            f"formula={self.formula!r}, alpha={self.alpha:.4g})"
+        )
 
 
 # ---------------------------------------------------------------- shared by every learned reward
@@ -274,7 +298,9 @@ def require(td: TensorDictBase, key) -> torch.Tensor:
     """``td[key]``, or a KeyError naming the missing reward input and what the TensorDict holds."""
     value = td.get(key, None)
     if value is None:
-        raise KeyError(f"the reward reads {key!r}, which this TensorDict lacks (it holds {sorted(map(str, td.keys()))})")
+        raise KeyError(
+            f"the reward reads {key!r}, which this TensorDict lacks (it holds {sorted(map(str, td.keys()))})"
+        )
     return value
 
 
@@ -282,8 +308,12 @@ def write_reward_checkpoint(path: str | os.PathLike, config: dict, state_dict: M
     """Write ``{format, version, config, state_dict}`` atomically (a crash never leaves a partial file)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    payload = {"format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION, "config": config,
-               "state_dict": {k: v.detach().cpu() for k, v in state_dict.items()}}
+    payload = {
+        "format": CHECKPOINT_FORMAT,
+        "version": CHECKPOINT_VERSION,
+        "config": config,
+        "state_dict": {k: v.detach().cpu() for k, v in state_dict.items()},
+    }
     fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
     os.close(fd)
     try:
@@ -299,7 +329,9 @@ def read_reward_checkpoint(path: str | os.PathLike, map_location="cpu") -> dict:
     """The payload of a reward checkpoint; raises :class:`RewardCheckpointError` with the cause."""
     path = Path(path)
     if not path.is_file():
-        raise RewardCheckpointError(f"reward checkpoint {path} does not exist (pass reward.checkpoint=PATH to a reward.pt written by drs-learn)")
+        raise RewardCheckpointError(
+            f"reward checkpoint {path} does not exist (pass reward.checkpoint=PATH to a reward.pt written by drs-learn)"
+        )
     try:
         payload = torch.load(path, map_location=map_location, weights_only=True)
     except Exception as exc:
@@ -320,16 +352,29 @@ def read_reward_checkpoint(path: str | os.PathLike, map_location="cpu") -> dict:
 def load_checked(module: nn.Module, state_dict: Mapping[str, torch.Tensor], path) -> None:
     bad = [k for k, v in state_dict.items() if not torch.isfinite(v).all()]
     if bad:
-        raise RewardCheckpointError(f"{path} holds non-finite (NaN/inf) weights in {bad}: it was saved from a diverged run")
+        raise RewardCheckpointError(
+            f"{path} holds non-finite (NaN/inf) weights in {bad}: it was saved from a diverged run"
+        )
     try:
         module.load_state_dict(state_dict)
     except RuntimeError as exc:
-        raise RewardCheckpointError(f"{path}: the weights do not match the checkpoint's own description: {exc}") from exc
+        raise RewardCheckpointError(
+            f"{path}: the weights do not match the checkpoint's own description: {exc}"
+        ) from exc
 
 
-def compatibility_problems(metadata: Mapping, in_shapes: Mapping[str, int], num_stages_mine: int, stage_key: str | None,
-                           observation_spec, *, num_stages=None, family=None, action_spec=None,
-                           action_dim: int | None = None) -> list[str]:
+def compatibility_problems(
+    metadata: Mapping,
+    in_shapes: Mapping[str, int],
+    num_stages_mine: int,
+    stage_key: str | None,
+    observation_spec,
+    *,
+    num_stages=None,
+    family=None,
+    action_spec=None,
+    action_dim: int | None = None,
+) -> list[str]:
     """Every difference between a learned reward's inputs and an env, in words."""
     problems = []
     mine = metadata.get("family")
@@ -344,11 +389,15 @@ def compatibility_problems(metadata: Mapping, in_shapes: Mapping[str, int], num_
         if k not in keys:
             problems.append(f"it reads {k!r}, which the env does not produce")
         elif int(observation_spec[k].shape[-1]) != dim:
-            problems.append(f"it reads {k!r} of size {dim}, the env's {k!r} has size {int(observation_spec[k].shape[-1])}")
+            problems.append(
+                f"it reads {k!r} of size {dim}, the env's {k!r} has size {int(observation_spec[k].shape[-1])}"
+            )
     if stage_key is not None and stage_key not in keys:
         problems.append(f"it needs the stage index {stage_key!r} (add a StageIndicator transform)")
     if action_dim is not None and action_spec is not None and int(action_spec.shape[-1]) != action_dim:
-        problems.append(f"it reads actions of size {action_dim}, the env's actions have size {int(action_spec.shape[-1])}")
+        problems.append(
+            f"it reads actions of size {action_dim}, the env's actions have size {int(action_spec.shape[-1])}"
+        )
     return problems
 
 

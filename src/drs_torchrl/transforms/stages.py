@@ -5,6 +5,7 @@ makes them monotone (reaching a later stage implies the earlier ones, as the aut
 and writes the integer stage index ``k`` of the state, ``0 <= k <= N``.
 :class:`SemiSparseReward` turns that index into the semi-sparse reward ``R(s') = k`` (Eq. 2).
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -42,7 +43,9 @@ class StageIndicator(Transform):
     the ``"next"`` entries) and on bare TensorDicts. A missing indicator raises a ``KeyError`` naming it.
     """
 
-    def __init__(self, stage_keys: Sequence[str], stage_key: str = "stage", indicators_key: str | None = "stage_indicators"):
+    def __init__(
+        self, stage_keys: Sequence[str], stage_key: str = "stage", indicators_key: str | None = "stage_indicators"
+    ):
         stage_keys = list(stage_keys)
         if not stage_keys:
             raise ValueError("StageIndicator needs at least one indicator key (success)")
@@ -79,8 +82,10 @@ class StageIndicator(Transform):
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         if self.stage_keys[0] not in observation_spec.keys(True, True):
-            raise KeyError(f"stage indicator {self.stage_keys[0]!r} is not in the observation spec "
-                           f"(it has {sorted(map(str, observation_spec.keys(True, True)))})")
+            raise KeyError(
+                f"stage indicator {self.stage_keys[0]!r} is not in the observation spec "
+                f"(it has {sorted(map(str, observation_spec.keys(True, True)))})"
+            )
         ref = observation_spec[self.stage_keys[0]]
         shape = ref.shape[:-1]
         observation_spec[self.stage_key] = Bounded(
@@ -104,8 +109,14 @@ class SemiSparseReward(Transform):
     because TorchRL's ``RewardScaling`` refuses a bounded reward spec.
     """
 
-    def __init__(self, num_stages: int, offset: float = 0.0, stage_key: str = "stage", reward_key: str = "reward",
-                 scale: float = 1.0):
+    def __init__(
+        self,
+        num_stages: int,
+        offset: float = 0.0,
+        stage_key: str = "stage",
+        reward_key: str = "reward",
+        scale: float = 1.0,
+    ):
         if num_stages < 1:
             raise ValueError(f"num_stages must be >= 1, got {num_stages}")
         if not scale > 0:
@@ -130,8 +141,13 @@ class SemiSparseReward(Transform):
 
     def transform_reward_spec(self, reward_spec: Composite) -> Composite:
         shape = reward_spec[self.reward_key].shape if self.reward_key in reward_spec.keys() else (*reward_spec.shape, 1)
-        reward_spec[self.reward_key] = Bounded(self.scale * self.offset, self.scale * (self.num_stages + self.offset), shape=shape,
-                                               dtype=torch.float32, device=reward_spec.device)
+        reward_spec[self.reward_key] = Bounded(
+            self.scale * self.offset,
+            self.scale * (self.num_stages + self.offset),
+            shape=shape,
+            dtype=torch.float32,
+            device=reward_spec.device,
+        )
         return reward_spec
 
     def __repr__(self) -> str:

@@ -6,6 +6,7 @@ on each split through the same env and rollout the trainer's evaluation uses (ze
 
     OMP_NUM_THREADS=1 .venv/bin/python results/reuse/pick_cube/free_success/free_success.py --episodes 3000
 """
+
 import argparse
 import json
 from pathlib import Path
@@ -24,10 +25,15 @@ def main() -> None:
     p.add_argument("--out", default=str(Path(__file__).with_name("free_success.json")))
     a = p.parse_args()
     family = get_family("pick_cube")
-    result = {"command": f"results/reuse/pick_cube/free_success/free_success.py --episodes {a.episodes} "
-                         f"--steps {a.steps} --seed {a.seed}", "splits": {}}
+    result = {
+        "command": f"results/reuse/pick_cube/free_success/free_success.py --episodes {a.episodes} "
+        f"--steps {a.steps} --seed {a.seed}",
+        "splits": {},
+    }
     for k, split in enumerate(("train", "test")):
-        torch.manual_seed(a.seed + k)  # independent draws per split; ManiSkill's unseeded resets draw from torch's global RNG
+        torch.manual_seed(
+            a.seed + k
+        )  # independent draws per split; ManiSkill's unseeded resets draw from torch's global RNG
         env = make_family_env(family, split, seed=a.seed + 10_000, num_envs=1, reward_mode="sparse")
         base = env.base_env.unwrapped
         zero = torch.zeros(env.action_spec.shape)
@@ -37,7 +43,9 @@ def main() -> None:
             # the cube has not moved: the arm is still and the episode is at most a few steps long
             dists.append(float((base.cube.pose.p[0] - base.goal_site.pose.p[0]).norm()))
             if bool(ep["next", "success"].any()):
-                successes.append({"episode": i, "steps": int(ep.shape[-1]), "cube_goal_distance_m": round(dists[-1], 4)})
+                successes.append(
+                    {"episode": i, "steps": int(ep.shape[-1]), "cube_goal_distance_m": round(dists[-1], 4)}
+                )
         env.close()
         n = a.episodes
         result["splits"][split] = {
@@ -48,8 +56,10 @@ def main() -> None:
             "cube_within_3cm_of_goal": sum(d <= 0.03 for d in dists),
             "successes": successes,
         }
-        print(f"{split}: {len(successes)} of {n} episodes succeed within {a.steps} zero-action steps "
-              f"({100 * len(successes) / n:.2f}%)")
+        print(
+            f"{split}: {len(successes)} of {n} episodes succeed within {a.steps} zero-action steps "
+            f"({100 * len(successes) / n:.2f}%)"
+        )
     Path(a.out).write_text(json.dumps(result, indent=2) + "\n")
 
 

@@ -7,6 +7,7 @@ stage label, observation and action differ::
 
     .venv/bin/python results/reuse/pick_cube/probe/stage_input_check.py > results/reuse/pick_cube/probe/stage_input_check.md
 """
+
 import torch
 from omegaconf import OmegaConf
 from torchrl.envs.utils import ExplorationType, set_exploration_type
@@ -32,8 +33,15 @@ def main() -> None:
     runs = {}
     for label, overrides in (("2.5 cm", None), ("5 cm", {"placed_thresh": 0.05})):
         torch.manual_seed(0)
-        env = make_family_env(family, "test", seed=0, variant_overrides=overrides, reward_mode="normalized_dense",
-                              control_mode=cfg.env.control_mode, max_episode_steps=cfg.env.max_episode_steps)
+        env = make_family_env(
+            family,
+            "test",
+            seed=0,
+            variant_overrides=overrides,
+            reward_mode="normalized_dense",
+            control_mode=cfg.env.control_mode,
+            max_episode_steps=cfg.env.max_episode_steps,
+        )
         actor, _ = load_policy(POLICY, env.observation_spec, env.action_spec, family=family.name)
         if overrides is None:
             print(f"Policy inputs: {list(actor.in_keys)}.\n")
@@ -41,7 +49,9 @@ def main() -> None:
             runs[label] = [env.rollout(1000, actor, break_when_any_done=True, auto_reset=True) for _ in range(EPISODES)]
         env.close()
     print(f"`{POLICY}`, sampled actions, seed 0: the same episodes with the stages labelled at 2.5 cm and at 5 cm.\n")
-    print("| episode | steps (2.5 / 5 cm) | first step whose stage label differs | first differing action | first differing observation |")
+    print(
+        "| episode | steps (2.5 / 5 cm) | first step whose stage label differs | first differing action | first differing observation |"
+    )
     print("|---|---|---|---|---|")
     for i, (a, b) in enumerate(zip(runs["2.5 cm"], runs["5 cm"])):
         n = min(len(a), len(b))

@@ -12,4 +12,5 @@ ones. These envs take a pool of variants and draw one per episode (``pool.py``):
 
 Importing this package registers them with ManiSkill.
 """
+
 from drs_torchrl.envs.variants import assets, pick, place_sphere, stack_cube, valve  # noqa: F401

@@ -23,6 +23,7 @@ Each variant is ``{"model_ids": [...]}`` (faucets and cabinets: PartNet-Mobility
 ``{"model_split": "train" | "test"}`` (the YCB object list ships with the download, so the split
 is a rule on the sorted ids, see :func:`ycb_split`) or ``{"model_ids": [...]}``.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -75,11 +76,18 @@ class _ModelSplitMixin(VariantPoolMixin):
 
 
 class PickSingleYCBSplitEnv(_ModelSplitMixin, PickSingleYCBEnv):
-    VARIANT_DEFAULTS = {"model_ids": None, "model_split": None, "goal_thresh": 0.025, "placed_thresh": 0.0,
-                        "object_static_thresh": 0.03}
+    VARIANT_DEFAULTS = {
+        "model_ids": None,
+        "model_split": None,
+        "goal_thresh": 0.025,
+        "placed_thresh": 0.0,
+        "object_static_thresh": 0.03,
+    }
 
     def __init__(self, *args, variants=None, variant_names=None, robot_uids=None, **kwargs):
-        kwargs = self._pool_init(variants, variant_names, kwargs if robot_uids is None else {"robot_uids": robot_uids, **kwargs})
+        kwargs = self._pool_init(
+            variants, variant_names, kwargs if robot_uids is None else {"robot_uids": robot_uids, **kwargs}
+        )
         kwargs.setdefault("robot_uids", "panda")
         super().__init__(*args, **kwargs)
 
@@ -120,7 +128,9 @@ class TurnFaucetSplitEnv(_ModelSplitMixin, TurnFaucetEnv):
     VARIANT_DEFAULTS = {"model_ids": None, "moving_thresh": 0.01}
 
     def __init__(self, *args, variants=None, variant_names=None, robot_uids=None, **kwargs):
-        kwargs = self._pool_init(variants, variant_names, kwargs if robot_uids is None else {"robot_uids": robot_uids, **kwargs})
+        kwargs = self._pool_init(
+            variants, variant_names, kwargs if robot_uids is None else {"robot_uids": robot_uids, **kwargs}
+        )
         kwargs.setdefault("robot_uids", "panda")
         super().__init__(*args, **kwargs)
 
@@ -159,7 +169,8 @@ class OpenCabinetDoorSplitEnv(_ModelSplitMixin, OpenCabinetDoorEnv):
         info["is_handle_grasped"] = self.agent.is_grasping(self.handle_link)
         link = self.handle_link
         info["is_door_static"] = (torch.linalg.norm(link.angular_velocity, axis=1) <= 1) & (
-            torch.linalg.norm(link.linear_velocity, axis=1) <= 0.1)
+            torch.linalg.norm(link.linear_velocity, axis=1) <= 0.1
+        )
         info["success"] = open_enough & info["is_door_static"]
         return info
 

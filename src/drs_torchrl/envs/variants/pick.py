@@ -21,6 +21,7 @@ with the object, the "placed" threshold and the robot as parameters.
 
 Both draw a variant per episode from the pool they are given (see ``pool.py``).
 """
+
 from __future__ import annotations
 
 import torch
@@ -53,12 +54,19 @@ class PickObjectEnv(VariantPoolMixin, PickCubeEnv):
     object-static condition from success). ``robot_uids`` is a constructor argument.
     """
 
-    VARIANT_DEFAULTS = {"object_shape": "cube", "object_size": 0.02, "goal_thresh": 0.025, "placed_thresh": 0.0,
-                        "object_static_thresh": 0.03}
+    VARIANT_DEFAULTS = {
+        "object_shape": "cube",
+        "object_size": 0.02,
+        "goal_thresh": 0.025,
+        "placed_thresh": 0.0,
+        "object_static_thresh": 0.03,
+    }
     GRASPABLE = (0.005, 0.04)  # half widths the grippers can close on (metres)
 
     def __init__(self, *args, variants=None, variant_names=None, robot_uids=None, **kwargs):
-        kwargs = self._pool_init(variants, variant_names, kwargs if robot_uids is None else {"robot_uids": robot_uids, **kwargs})
+        kwargs = self._pool_init(
+            variants, variant_names, kwargs if robot_uids is None else {"robot_uids": robot_uids, **kwargs}
+        )
         kwargs.setdefault("robot_uids", "panda")
         super().__init__(*args, **kwargs)
 
@@ -69,8 +77,10 @@ class PickObjectEnv(VariantPoolMixin, PickCubeEnv):
         spec = self._object_spec(variant)
         lo, hi = self.GRASPABLE
         if not lo <= min(spec.half_extent[:2]) <= hi:
-            raise ValueError(f"object {spec.shape} {list(spec.size)}: its narrowest horizontal half width "
-                             f"{min(spec.half_extent[:2])} m is outside the graspable {lo}-{hi} m range")
+            raise ValueError(
+                f"object {spec.shape} {list(spec.size)}: its narrowest horizontal half width "
+                f"{min(spec.half_extent[:2])} m is outside the graspable {lo}-{hi} m range"
+            )
         if float(variant["goal_thresh"]) <= 0:
             raise ValueError(f"goal_thresh must be > 0, got {variant['goal_thresh']}")
         if float(variant["placed_thresh"]) < 0:
@@ -97,8 +107,12 @@ class PickObjectEnv(VariantPoolMixin, PickCubeEnv):
 
         self.obj_pool = ActorPool(self, "object", specs, build, floor_z=-self.table_scene.table_height)
         self.goal_site = actors.build_sphere(
-            self.scene, radius=max(float(v["goal_thresh"]) for v in self.variant_pool), color=[0, 1, 0, 1],
-            name="goal_site", body_type="kinematic", add_collision=False,
+            self.scene,
+            radius=max(float(v["goal_thresh"]) for v in self.variant_pool),
+            color=[0, 1, 0, 1],
+            name="goal_site",
+            body_type="kinematic",
+            add_collision=False,
         )
         self._hidden_objects.append(self.goal_site)
 

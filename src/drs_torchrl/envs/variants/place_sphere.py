@@ -6,6 +6,7 @@ has a 2 cm half side; a sphere of radius ``r`` resting on the bin's floor can si
 ``2 cm - r`` of its centre, so "on bin" allows that much (+5 mm) horizontally, which for
 PlaceSphere's own 2 cm sphere is its original 5 mm test. Radii from 1 to 2 cm fit the bin.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -24,7 +25,9 @@ class PlaceSphereSizedEnv(VariantPoolMixin, PlaceSphereEnv):
     VARIANT_DEFAULTS = {"sphere_radius": 0.02}
 
     def __init__(self, *args, variants=None, variant_names=None, robot_uids=None, **kwargs):
-        kwargs = self._pool_init(variants, variant_names, kwargs if robot_uids is None else {"robot_uids": robot_uids, **kwargs})
+        kwargs = self._pool_init(
+            variants, variant_names, kwargs if robot_uids is None else {"robot_uids": robot_uids, **kwargs}
+        )
         kwargs.setdefault("robot_uids", "panda")
         super().__init__(*args, **kwargs)
 
@@ -43,8 +46,12 @@ class PlaceSphereSizedEnv(VariantPoolMixin, PlaceSphereEnv):
         specs = [ObjectSpec.make("sphere", v["sphere_radius"]) for v in self.variant_pool]
         color = np.array([12, 42, 160, 255]) / 255
         self.sphere_pool = ActorPool(
-            self, "sphere", specs,
-            lambda spec, name, scene_idxs, initial_pose: spec.build(self.scene, name, color, scene_idxs=scene_idxs, initial_pose=initial_pose),
+            self,
+            "sphere",
+            specs,
+            lambda spec, name, scene_idxs, initial_pose: spec.build(
+                self.scene, name, color, scene_idxs=scene_idxs, initial_pose=initial_pose
+            ),
             floor_z=-self.table_scene.table_height,
         )
         self.bin = self._build_bin(self.inner_side_half_len)
@@ -76,7 +83,12 @@ class PlaceSphereSizedEnv(VariantPoolMixin, PlaceSphereEnv):
         on_bin = xy_ok & z_ok
         static = self.obj.is_static(lin_thresh=1e-2, ang_thresh=0.5)
         grasped = self.agent.is_grasping(self.obj)
-        return {"is_obj_grasped": grasped, "is_obj_on_bin": on_bin, "is_obj_static": static, "success": on_bin & static & ~grasped}
+        return {
+            "is_obj_grasped": grasped,
+            "is_obj_on_bin": on_bin,
+            "is_obj_static": static,
+            "success": on_bin & static & ~grasped,
+        }
 
 
 if "PlaceSphereSized-v1" not in REGISTERED_ENVS:

@@ -20,6 +20,7 @@ Parameters of a variant that may change between episodes are the keys of the env
 ``VARIANT_DEFAULTS``; any other key (``robot_uids``...) is a constructor argument and must be the
 same in every variant of a pool.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
@@ -65,7 +66,9 @@ class VariantPoolMixin:
             pool.append({**self.VARIANT_DEFAULTS, **per})
         for key in shared or {}:
             if key in kwargs and kwargs[key] != shared[key]:
-                raise ValueError(f"{type(self).__name__}: {key}={kwargs[key]!r} conflicts with the variants' {shared[key]!r}")
+                raise ValueError(
+                    f"{type(self).__name__}: {key}={kwargs[key]!r} conflicts with the variants' {shared[key]!r}"
+                )
         kwargs.update(shared or {})
         names = list(variant_names) if variant_names is not None else [f"variant{i}" for i in range(len(pool))]
         if len(names) != len(pool):
@@ -199,8 +202,16 @@ class ActorPool:
     ``view`` is what task code reads (the active actor on CPU, the merged actor on GPU).
     """
 
-    def __init__(self, env, role: str, specs_per_variant: Sequence[Any], build: Callable[..., Any], *, floor_z: float,
-                 park_slot: int = 0):
+    def __init__(
+        self,
+        env,
+        role: str,
+        specs_per_variant: Sequence[Any],
+        build: Callable[..., Any],
+        *,
+        floor_z: float,
+        park_slot: int = 0,
+    ):
         from mani_skill.utils.structs.actor import Actor
 
         self.env, self.role = env, role
@@ -211,7 +222,9 @@ class ActorPool:
         if not self.gpu:
             self.actors = []
             for j, spec in enumerate(self.specs):
-                self.actors.append(build(spec, name=f"{role}_{j}", scene_idxs=None, initial_pose=self._park_pose(park_slot + j, spec)))
+                self.actors.append(
+                    build(spec, name=f"{role}_{j}", scene_idxs=None, initial_pose=self._park_pose(park_slot + j, spec))
+                )
             self.park_slots = [park_slot + j for j in range(len(self.specs))]
             self._active = 0
         else:

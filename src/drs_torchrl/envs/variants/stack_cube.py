@@ -5,6 +5,7 @@ Stage indicators (three stages, read from StackCube's ``evaluate``): ``is_cubeA_
 sizes, "A on B" means A's centre is ``hA + hB`` (+-5 mm) above B's and within B's half diagonal
 (+5 mm) of it horizontally, which is StackCube's own test when both half sizes are 2 cm.
 """
+
 from __future__ import annotations
 
 import torch
@@ -23,7 +24,9 @@ class StackCubeSizedEnv(VariantPoolMixin, StackCubeEnv):
     VARIANT_DEFAULTS = {"cube_a_half_size": 0.02, "cube_b_half_size": 0.02}
 
     def __init__(self, *args, variants=None, variant_names=None, robot_uids=None, **kwargs):
-        kwargs = self._pool_init(variants, variant_names, kwargs if robot_uids is None else {"robot_uids": robot_uids, **kwargs})
+        kwargs = self._pool_init(
+            variants, variant_names, kwargs if robot_uids is None else {"robot_uids": robot_uids, **kwargs}
+        )
         kwargs.setdefault("robot_uids", "panda")
         super().__init__(*args, **kwargs)
 
@@ -49,10 +52,13 @@ class StackCubeSizedEnv(VariantPoolMixin, StackCubeEnv):
 
         def builder(color):
             return lambda spec, name, scene_idxs, initial_pose: spec.build(
-                self.scene, name, color, scene_idxs=scene_idxs, initial_pose=initial_pose)
+                self.scene, name, color, scene_idxs=scene_idxs, initial_pose=initial_pose
+            )
 
         self.pool_a = ActorPool(self, "cubeA", specs_a, builder((1, 0, 0, 1)), floor_z=floor)
-        self.pool_b = ActorPool(self, "cubeB", specs_b, builder((0, 1, 0, 1)), floor_z=floor, park_slot=self.pool_a.num_slots)
+        self.pool_b = ActorPool(
+            self, "cubeB", specs_b, builder((0, 1, 0, 1)), floor_z=floor, park_slot=self.pool_a.num_slots
+        )
 
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict):
         with torch.device(self.device):
@@ -61,7 +67,9 @@ class StackCubeSizedEnv(VariantPoolMixin, StackCubeEnv):
             self.table_scene.initialize(env_idx)
             ha, hb = self._param("cube_a_half_size", env_idx), self._param("cube_b_half_size", env_idx)
             xy = torch.rand((b, 2)) * 0.2 - 0.1
-            sampler = randomization.UniformPlacementSampler(bounds=[[-0.1, -0.2], [0.1, 0.2]], batch_size=b, device=self.device)
+            sampler = randomization.UniformPlacementSampler(
+                bounds=[[-0.1, -0.2], [0.1, 0.2]], batch_size=b, device=self.device
+            )
             radius = float(torch.maximum(ha, hb).max()) * 2**0.5 + 0.001
             a_xy = xy + sampler.sample(radius, 100)
             b_xy = xy + sampler.sample(radius, 100, verbose=False)

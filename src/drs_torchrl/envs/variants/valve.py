@@ -13,6 +13,7 @@ Stage indicators (DrS Appendix A's Turn Faucet analogue): ``is_valve_turning`` (
 by more than ``turning_thresh`` radians in the commanded direction during the last control step)
 and ``success`` (ManiSkill's: rotation beyond the level's goal).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -56,8 +57,9 @@ class RotateValveVariantsEnv(VariantPoolMixin, RotateValveEnv):
 
     VARIANT_DEFAULTS = {"level": 0, "turning_thresh": 0.01, "max_steps": None}
 
-    def __init__(self, *args, variants=None, variant_names=None, valves_per_level: int = 3, geometry_seed: int = 0,
-                 **kwargs):
+    def __init__(
+        self, *args, variants=None, variant_names=None, valves_per_level: int = 3, geometry_seed: int = 0, **kwargs
+    ):
         kwargs = self._pool_init(variants, variant_names, kwargs)
         for v in self.variant_pool:
             if v["max_steps"] is None:
@@ -83,8 +85,13 @@ class RotateValveVariantsEnv(VariantPoolMixin, RotateValveEnv):
             for lvl in sorted(geoms):
                 for angles, s_len, s_rad in geoms[lvl]:
                     j = len(self._valves)
-                    valve, cap = build_robel_valve(self.scene, valve_angles=angles, name=f"valve_{j}", radius_scale=s_len,
-                                                   capsule_radius_scale=s_rad)
+                    valve, cap = build_robel_valve(
+                        self.scene,
+                        valve_angles=angles,
+                        name=f"valve_{j}",
+                        radius_scale=s_len,
+                        capsule_radius_scale=s_rad,
+                    )
                     park = sapien.Pose(p=[j * PARK_SPACING, -PARK_Y, 0])  # fixed base: it may hover
                     valve.set_pose(Pose.create(park))
                     self._valves.append(valve)
@@ -99,8 +106,14 @@ class RotateValveVariantsEnv(VariantPoolMixin, RotateValveEnv):
             for i in range(self.num_envs):
                 lvl = levels[int(assign[i])]
                 angles, s_len, s_rad = geoms[lvl][i % len(geoms[lvl])]
-                valve, cap = build_robel_valve(self.scene, valve_angles=angles, name=f"valve_station_{i}", scene_idxs=[i],
-                                               radius_scale=s_len, capsule_radius_scale=s_rad)
+                valve, cap = build_robel_valve(
+                    self.scene,
+                    valve_angles=angles,
+                    name=f"valve_station_{i}",
+                    scene_idxs=[i],
+                    radius_scale=s_len,
+                    capsule_radius_scale=s_rad,
+                )
                 per_env.append(valve)
                 links.append(valve.links_map["valve"])
                 caps.append(cap)
@@ -131,7 +144,11 @@ class RotateValveVariantsEnv(VariantPoolMixin, RotateValveEnv):
             reverse = level >= 4
             if reverse.any():
                 direction[reverse] = (1 - torch.randint(0, 2, (int(reverse.sum()),)) * 2).float()
-            if self.rotate_direction is None or not torch.is_tensor(self.rotate_direction) or len(self.rotate_direction) != self.num_envs:
+            if (
+                self.rotate_direction is None
+                or not torch.is_tensor(self.rotate_direction)
+                or len(self.rotate_direction) != self.num_envs
+            ):
                 self.rotate_direction = torch.ones(self.num_envs)
                 self.rest_qpos = torch.zeros((self.num_envs, 1))
                 self._prev_progress = torch.zeros(self.num_envs)
@@ -145,8 +162,9 @@ class RotateValveVariantsEnv(VariantPoolMixin, RotateValveEnv):
             self.valve.set_qpos(qpos)
             self.rest_qpos[env_idx] = qpos
             self._prev_progress[env_idx] = 0.0
-            self.success_threshold = torch.as_tensor([GOALS[int(v["level"])] for v in self.variant_pool],
-                                                     dtype=torch.float32)[self.variant_index.cpu()].to(self.device)
+            self.success_threshold = torch.as_tensor(
+                [GOALS[int(v["level"])] for v in self.variant_pool], dtype=torch.float32
+            )[self.variant_index.cpu()].to(self.device)
 
     rotate_direction = None
 
