@@ -41,10 +41,6 @@ class RewardSetup:
     learned: Transform | None = None  # trained in this run (phase 1), by a drs_torchrl.learners learner
     frozen: Transform | None = None  # applied inside the env (phase 2 / static)
 
-    @property
-    def replay_transform(self) -> Transform | None:
-        return self.learned
-
 
 def reward_setup(cfg, phase: str) -> RewardSetup:
     """Reward of a run from the ``reward`` config group (``cfg.reward``)."""
