@@ -5,7 +5,9 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from drs_torchrl.trainers.apps import conf_dir
-from drs_torchrl.trainers.loop import NonFiniteError, Trainer, TrainingStateError
+from drs_torchrl.updaters.base import NonFiniteError
+from drs_torchrl.trainers.build import Run
+from drs_torchrl.checkpoint import TrainingStateError
 from drs_torchrl.transforms import DrSReward
 
 pytestmark = pytest.mark.sim
@@ -30,13 +32,13 @@ def cfg(*extra):
         return compose("learn", overrides=[*TINY, *extra])
 
 
-class PoisonAfterFirstCheckpoint(Trainer):
+class PoisonAfterFirstCheckpoint(Run):
     """Corrupts the critic right after the first good checkpoint (a diverging run)."""
 
     def save_training_state(self):
         out = super().save_training_state()
         with torch.no_grad():
-            for p in self.loss.qvalue_network_params.values(True, True):
+            for p in self.updater.loss.qvalue_network_params.values(True, True):
                 p.fill_(float("nan"))
         return out
 
@@ -51,14 +53,14 @@ def test_nan_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path):
     assert all(torch.isfinite(v).all() for v in payload["loss"].values() if v.is_floating_point())
     DrSReward.from_checkpoint(tmp_path / "checkpoints" / "reward.pt")  # finite, loadable
     # and the run resumes from it
-    tr2 = Trainer(cfg(), "learn", tmp_path, resume=True)
+    tr2 = Run(cfg(), "learn", tmp_path, resume=True)
     assert tr2.frames == 256
     tr2.close()
 
 
 def test_damaged_training_state_is_reported(tmp_path):
-    Trainer(cfg("total_frames=256"), "learn", tmp_path).run()
+    Run(cfg("total_frames=256"), "learn", tmp_path).run()
     for f in (tmp_path / "checkpoints" / "state" / "replay").rglob("observation.memmap"):
         f.write_bytes(f.read_bytes()[:10])
     with pytest.raises(TrainingStateError, match="damaged.*truncated"):
-        Trainer(cfg(), "learn", tmp_path, resume=True)
+        Run(cfg(), "learn", tmp_path, resume=True)

@@ -171,7 +171,8 @@ def test_fine_tuning_starts_from_the_phase1_agent(tmp_path):
     """Sec. 5.4.2: init_from=RUN_DIR starts phase 2 from that run's actor, critics and entropy coefficient."""
     from omegaconf import OmegaConf
 
-    from drs_torchrl.trainers.loop import ConfigError, Trainer
+    from drs_torchrl.errors import ConfigError
+    from drs_torchrl.trainers.build import Run
 
     learn = tmp_path / "learn"
     static = [a for a in TINY if not a.startswith("reward.disc")]  # static rewards have no learner settings
@@ -181,23 +182,23 @@ def test_fine_tuning_starts_from_the_phase1_agent(tmp_path):
     cfg = OmegaConf.load(learn / "config.yaml")
     cfg.phase, cfg.env.split = "reuse", "test"
     cfg.init_from = str(learn)
-    tr = Trainer(cfg, "reuse", tmp_path / "tuned")
+    tr = Run(cfg, "reuse", tmp_path / "tuned")
     try:
         for k, v in ck["actor"].items():
             assert torch.equal(tr.actor.state_dict()[k], v), k
-        q = tr.loss.qvalue_network_params.data.cpu().to_dict()
-        tq = tr.loss.target_qvalue_network_params.data.cpu()
+        q = tr.updater.loss.qvalue_network_params.data.cpu().to_dict()
+        tq = tr.updater.loss.target_qvalue_network_params.data.cpu()
         from tensordict import TensorDict
 
         saved = TensorDict(ck["qvalue_params"])
         assert all(torch.equal(a, b) for a, b in zip(saved.values(True, True), TensorDict(q).values(True, True)))
         assert all(torch.equal(a, b) for a, b in zip(saved.values(True, True), tq.values(True, True)))
-        assert torch.equal(tr.loss.log_alpha.detach(), ck["log_alpha"])
+        assert torch.equal(tr.updater.loss.log_alpha.detach(), ck["log_alpha"])
     finally:
         tr.close()
     cfg.algo.hidden = [16, 16]
     with pytest.raises(ConfigError, match="hidden \\[32, 32\\].*hidden \\[16, 16\\]"):
-        Trainer(cfg, "reuse", tmp_path / "bad")
+        Run(cfg, "reuse", tmp_path / "bad")
     out = tmp_path / "cli"
     p = _run(
         "drs-reuse",
@@ -219,20 +220,21 @@ def test_demonstrations_fill_a_share_of_every_sac_batch(tmp_path, demos):
 
     from drs_torchrl.demos import load_demos
     from drs_torchrl.trainers.apps import conf_dir
-    from drs_torchrl.trainers.loop import ConfigError, Trainer
+    from drs_torchrl.errors import ConfigError
+    from drs_torchrl.trainers.build import Run
 
     def cfg(*extra):
         base = [a for a in TINY if not a.startswith("reward.disc")] if "reward=sparse" in extra else TINY
         with initialize_config_dir(config_dir=conf_dir(), version_base=None):
             return compose("learn", overrides=[*base, *extra])
 
-    tr = Trainer(cfg(f"demos.path={demos}", "demos.sac_share=0.25"), "learn", tmp_path / "run")
+    tr = Run(cfg(f"demos.path={demos}", "demos.sac_share=0.25"), "learn", tmp_path / "run")
     try:
         tr.run()
         with warnings.catch_warnings():  # the agent's buffer is built for its share: no batch-size warning
             warnings.simplefilter("error")
-            batch = tr.sac_batch()
-        assert batch.shape == (32,) and tr._demo_batch == 8 and tr.replay.batch_size == 24
+            batch = tr.updater.sample()
+        assert batch.shape == (32,) and tr.updater.demo_batch == 8 and tr.updater.replay.batch_size == 24
         episodes, _ = load_demos(demos)
         demo_obs = torch.cat([ep["state", "observation"] for ep in episodes])
         from_demos = (batch["observation"][:, None, :] == demo_obs[None]).all(-1).any(-1)
@@ -242,9 +244,9 @@ def test_demonstrations_fill_a_share_of_every_sac_batch(tmp_path, demos):
     finally:
         tr.close()
     with pytest.raises(ConfigError, match="reward learned in this run"):
-        Trainer(cfg(f"demos.path={demos}", "demos.sac_share=0.25", "reward=sparse"), "learn", tmp_path / "b")
+        Run(cfg(f"demos.path={demos}", "demos.sac_share=0.25", "reward=sparse"), "learn", tmp_path / "b")
     with pytest.raises(ConfigError, match="must be in \\[0, 1\\)"):
-        Trainer(cfg(f"demos.path={demos}", "demos.sac_share=1.5"), "learn", tmp_path / "c")
+        Run(cfg(f"demos.path={demos}", "demos.sac_share=1.5"), "learn", tmp_path / "c")
     # actions of another controller (e.g. the planner's joint positions) are refused with the fix
     from drs_torchrl.demos import save_demos
 
@@ -254,7 +256,7 @@ def test_demonstrations_fill_a_share_of_every_sac_batch(tmp_path, demos):
     meta = {**meta, "actions": {**meta["actions"], "size": 12}}
     wide_path = save_demos(wide, meta, tmp_path / "wide.demos")
     with pytest.raises(ConfigError, match="12-dimensional; this run acts with 6-dimensional.*drs-demos --control-mode"):
-        Trainer(cfg(f"demos.path={wide_path}", "demos.sac_share=0.25"), "learn", tmp_path / "d")
+        Run(cfg(f"demos.path={wide_path}", "demos.sac_share=0.25"), "learn", tmp_path / "d")
 
 
 def test_demonstrations_in_the_sac_batch_only_leave_the_stage_buffers_to_the_agent(tmp_path, demos):
@@ -263,7 +265,8 @@ def test_demonstrations_in_the_sac_batch_only_leave_the_stage_buffers_to_the_age
     from hydra import compose, initialize_config_dir
 
     from drs_torchrl.trainers.apps import conf_dir
-    from drs_torchrl.trainers.loop import ConfigError, Trainer
+    from drs_torchrl.errors import ConfigError
+    from drs_torchrl.trainers.build import Run
 
     def cfg(*extra):
         with initialize_config_dir(config_dir=conf_dir(), version_base=None):
@@ -271,11 +274,11 @@ def test_demonstrations_in_the_sac_batch_only_leave_the_stage_buffers_to_the_age
 
     top = None
     for filed in (True, False):
-        tr = Trainer(
+        tr = Run(
             cfg("demos.sac_share=0.25", f"demos.stage_buffers={str(filed).lower()}"), "learn", tmp_path / f"run{filed}"
         )
         try:
-            assert tr._demo_batch == 8
+            assert tr.updater.demo_batch == 8
             n_top = int(tr.learner.stage_buffers.stage_counts()[-1])
             if filed:
                 top = n_top
@@ -285,9 +288,9 @@ def test_demonstrations_in_the_sac_batch_only_leave_the_stage_buffers_to_the_age
         finally:
             tr.close()
     with pytest.raises(ConfigError, match="would not be used at all; set demos.sac_share=0.25"):
-        Trainer(cfg("demos.sac_share=0", "demos.stage_buffers=false"), "learn", tmp_path / "none")
+        Run(cfg("demos.sac_share=0", "demos.stage_buffers=false"), "learn", tmp_path / "none")
     with pytest.raises(ConfigError, match="demos.stage_buffers=false is for drs-learn reward=drs"):
-        Trainer(cfg("demos.sac_share=0.25", "demos.stage_buffers=false", "reward=vice_raq"), "learn", tmp_path / "vice")
+        Run(cfg("demos.sac_share=0.25", "demos.stage_buffers=false", "reward=vice_raq"), "learn", tmp_path / "vice")
 
 
 def test_the_recipe_default_keeps_drs_demonstrations_in_the_sac_batch_only(tmp_path, demos):
@@ -297,7 +300,7 @@ def test_the_recipe_default_keeps_drs_demonstrations_in_the_sac_batch_only(tmp_p
     from hydra import compose, initialize_config_dir
 
     from drs_torchrl.trainers.apps import conf_dir
-    from drs_torchrl.trainers.loop import Trainer
+    from drs_torchrl.trainers.build import Run
 
     def cfg(*extra):
         with initialize_config_dir(config_dir=conf_dir(), version_base=None):
@@ -305,7 +308,7 @@ def test_the_recipe_default_keeps_drs_demonstrations_in_the_sac_batch_only(tmp_p
 
     assert cfg().demos.stage_buffers == "auto" and cfg().stop_at_success == 0.8
     for extra, sac_only in (((), True), (("demos.sac_share=0",), False), (("reward=vice_raq",), False)):
-        tr = Trainer(cfg(*extra), "learn", tmp_path / f"run{len(extra)}{extra[:1]}")
+        tr = Run(cfg(*extra), "learn", tmp_path / f"run{len(extra)}{extra[:1]}")
         try:
             assert tr.cfg.demos.stage_buffers is (not sac_only), extra
             if tr.cfg.reward.name == "drs":
@@ -321,17 +324,18 @@ def test_sac_share_auto_shares_where_the_demonstrations_allow_and_says_why_not(t
 
     from drs_torchrl.demos import load_demos, save_demos
     from drs_torchrl.trainers.apps import conf_dir
-    from drs_torchrl.trainers.loop import AUTO_SAC_SHARE, Trainer
+    from drs_torchrl.data.demo_mix import AUTO_SAC_SHARE
+    from drs_torchrl.trainers.build import Run
 
     def trainer(name, *extra):
         with initialize_config_dir(config_dir=conf_dir(), version_base=None):
             cfg = compose("learn", overrides=[*TINY, *extra])
         assert cfg.demos.sac_share == "auto"
-        return Trainer(cfg, "learn", tmp_path / name)
+        return Run(cfg, "learn", tmp_path / name)
 
     tr = trainer("a", f"demos.path={demos}")
     try:
-        assert tr._demo_batch == round(AUTO_SAC_SHARE * 32) and tr.cfg.demos.sac_share == AUTO_SAC_SHARE
+        assert tr.updater.demo_batch == round(AUTO_SAC_SHARE * 32) and tr.cfg.demos.sac_share == AUTO_SAC_SHARE
         assert "demos.sac_share=auto -> 0.25: a share of every SAC batch" in capsys.readouterr().out
     finally:
         tr.close()
@@ -345,7 +349,7 @@ def test_sac_share_auto_shares_where_the_demonstrations_allow_and_says_why_not(t
     ):  # another controller's actions; no demonstrations
         tr = trainer(name, *extra)
         try:
-            assert tr.demo_replay is None and tr._demo_batch == 0 and tr.cfg.demos.sac_share == 0.0
+            assert tr.updater.demo_replay is None and tr.updater.demo_batch == 0 and tr.cfg.demos.sac_share == 0.0
         finally:
             tr.close()
     out = capsys.readouterr().out

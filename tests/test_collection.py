@@ -8,7 +8,7 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from drs_torchrl.trainers.apps import conf_dir
-from drs_torchrl.trainers.loop import Trainer
+from drs_torchrl.trainers.build import Run
 
 pytestmark = [pytest.mark.sim]
 
@@ -30,7 +30,7 @@ def config(*overrides):
 
 
 def test_background_worker_acts_with_the_updated_actor(tmp_path):
-    tr = Trainer(config("total_frames=100000", "algo.learning_starts=0"), "learn", tmp_path)
+    tr = Run(config("total_frames=100000", "algo.learning_starts=0"), "learn", tmp_path)
     assert tr.collects_in_background
     collector = tr.make_collector(64 * 6)
     try:
@@ -54,7 +54,7 @@ def test_background_worker_acts_with_the_updated_actor(tmp_path):
 
 
 def test_background_run_keeps_utd_exact_and_saves(tmp_path):
-    tr = Trainer(
+    tr = Run(
         config("total_frames=768", "algo.learning_starts=256", "algo.frames_per_batch=64", "logger.interval=256"),
         "learn",
         tmp_path,
@@ -73,7 +73,7 @@ def test_a_gpu_learner_gets_the_in_process_collector_and_the_cpu_keeps_the_backg
     """drs-reuse's default algo (sac_cpu) collects in a background process, which cannot feed a CUDA learner:
     with device=cuda the in-process Collector replaces it (noted on the console, saved in the config).
     Found on the H200 device check (results/gpu/): `drs-reuse device=cuda` refused to start."""
-    from drs_torchrl.trainers.loop import collector_for_device
+    from drs_torchrl.trainers.validation import collector_for_device
 
     cpu_cfg = config(f"algo.collector._target_={target}", "+algo.collector.num_workers=2")
     assert collector_for_device(cpu_cfg, torch.device("cpu")) is None

@@ -342,7 +342,7 @@ def test_a_stage_ablation_relabels_the_demonstrations_and_their_previous_states(
 
     from drs_torchrl.demos import restage_demos
     from drs_torchrl.trainers.apps import conf_dir
-    from drs_torchrl.trainers.loop import Trainer
+    from drs_torchrl.trainers.build import Run
 
     # in the agent's controller, as drs-demos records them by default, so they can share the SAC batch
     states, meta = record_demos(pick_cube, "cube_2cm", 2, seed=10, control_mode="pd_ee_delta_pos", progress=False)
@@ -386,11 +386,11 @@ def test_a_stage_ablation_relabels_the_demonstrations_and_their_previous_states(
             "algo.collector._target_=torchrl.collectors.Collector",
         ]
         cfg = compose("learn", overrides=cfg_overrides)
-    tr = Trainer(cfg, "learn", tmp_path / "run")
+    tr = Run(cfg, "learn", tmp_path / "run")
     try:
         assert "recorded without" not in capsys.readouterr().out
         tr.run()  # three-stage demonstrations in a two-stage run's SAC batch: this used to fail at the first update
-        batch = tr.sac_batch()
+        batch = tr.updater.sample()
         assert batch["stage_indicators"].shape == (32, 2) and batch["next", "stage_indicators"].shape == (32, 2)
         assert int(batch["next", "stage"][-8:].max()) <= 2
     finally:
@@ -400,7 +400,7 @@ def test_a_stage_ablation_relabels_the_demonstrations_and_their_previous_states(
         cfg = compose(
             "learn", overrides=[*[o for o in cfg_overrides if not o.startswith("+ablation")], "+ablation=placed_5cm"]
         )
-    Trainer(cfg, "learn", tmp_path / "run5").close()
+    Run(cfg, "learn", tmp_path / "run5").close()
     out = capsys.readouterr().out
     assert (
         "recorded without this run's env.variant_overrides placed_thresh=0.05 (recorded with the variant's default)"

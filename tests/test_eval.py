@@ -265,7 +265,7 @@ def _training_evaluations(tmp_path, *overrides):
     from hydra import compose, initialize_config_dir
 
     from drs_torchrl.trainers.apps import conf_dir
-    from drs_torchrl.trainers.loop import Trainer
+    from drs_torchrl.trainers.build import Run
 
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
         cfg = compose(
@@ -281,7 +281,7 @@ def _training_evaluations(tmp_path, *overrides):
                 *overrides,
             ],
         )
-    tr = Trainer(cfg, "reuse", tmp_path)
+    tr = Run(cfg, "reuse", tmp_path)
     starts, rollout = [], tr.eval_env.rollout
 
     def recording_rollout(*args, **kwargs):

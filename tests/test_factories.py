@@ -1,43 +1,32 @@
-"""The SAC trainer's make_* factories work on their own, as the README shows (real ManiSkill env)."""
+"""The make_* factories and the algo config's updater work on their own, as the docs show (real ManiSkill env)."""
 
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
+from hydra.utils import instantiate
 
 from drs_torchrl.rewards import reward_setup
 from drs_torchrl.tasks import family_from_config
 from drs_torchrl.trainers.apps import conf_dir
-from drs_torchrl.trainers.factories import (
-    make_envs,
-    make_loss_module,
-    make_optimizers,
-    make_replay_buffer,
-    make_sac_agent,
-)
+from drs_torchrl.trainers.factories import make_envs, make_replay_buffer
 
 pytestmark = pytest.mark.sim
 
 
-def test_factories_assemble_a_sac_update_on_a_family_env():
+def test_factories_and_the_algo_updater_assemble_a_sac_update_on_a_family_env():
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
         cfg = compose("reuse", overrides=["env=turn_valve", "reward=semi_sparse", "algo.hidden=[16,16]"])
     family = family_from_config(cfg.env)
     env, eval_env, kwargs = make_envs(cfg, family, reward_setup(cfg.reward, "reuse"), torch.device("cpu"))
     try:
         assert kwargs["semi_sparse_reward"] and eval_env.batch_size == torch.Size([])
-        actor, qvalue = make_sac_agent(cfg, env, torch.device("cpu"))
-        loss, target_updater = make_loss_module(cfg, actor, qvalue, env.action_spec, torch.device("cpu"))
-        opts = make_optimizers(cfg, loss)
         replay = make_replay_buffer(cfg, None, torch.device("cpu"))
-        replay.extend(env.rollout(8, actor))  # outside no_grad: the env detaches the actions itself
-        out = loss(replay.sample(4))
+        updater = instantiate(cfg.algo.updater)(env, replay)  # SAC: actor, twin critics, SACLoss, optimisers
+        replay.extend(env.rollout(8, updater.policy))  # outside no_grad: the env detaches the actions itself
+        opts = updater.optimizers
         before = [p.clone() for p in opts["critic"].param_groups[0]["params"]]
-        for o in opts.values():
-            o.zero_grad()
-        (out["loss_actor"] + out["loss_qvalue"] + out["loss_alpha"]).backward()
-        for o in opts.values():
-            o.step()
-        target_updater.step()
+        stats, rewards = updater.step()
+        assert updater.updates == 1 and set(stats.keys()) >= {"loss_actor", "loss_qvalue", "alpha"}
         assert any(not torch.equal(b, p) for b, p in zip(before, opts["critic"].param_groups[0]["params"]))
         assert (replay.sample(4)["next", "reward"] <= 0).all()  # semi-sparse: k - N
     finally:

@@ -469,7 +469,7 @@ def test_n_step_windows_that_reach_the_goal_are_terminal():
     from torchrl.data import LazyTensorStorage, ReplayBuffer
     from torchrl.envs.transforms import MultiStepTransform
 
-    from drs_torchrl.trainers.maze import mark_terminal_obs, terminal_at_window_end
+    from drs_torchrl.updaters.dqn import mark_terminal_obs, terminal_at_window_end
 
     T = 10
     term = torch.zeros(1, T, 1, dtype=torch.bool)
@@ -673,3 +673,35 @@ def test_an_existing_run_directory_is_refused_unless_overwrite(tmp_path):
         s = train(compose("maze", overrides=["phase=reuse", "reward.name=sparse", "overwrite=true", *TINY]), run)
     assert s["frames"] == 1024 and "old" not in json.loads((run / "summary.json").read_text())
     assert [int(r["frames"]) for r in csv.DictReader((run / "train.csv").read_text().splitlines())] == [0, 512, 1024]
+
+
+def test_ppo_learns_the_maze_reward_beside_it_and_reuses_it(tmp_path):
+    """The maze on the one loop with another algorithm: PPO (ClipPPOLoss + GAE, a categorical policy) in phase 1
+    with the discriminator training beside it, its batches rewarded by the discriminator of the moment, then
+    phase 2 with the frozen reward in the env."""
+    ppo = ["agent=ppo", "ppo.frames_per_batch=256", "ppo.batch_size=64", "ppo.epochs=2", "ppo.reward_scale=0.1"]
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base=None):
+        s = train(compose("maze", overrides=["phase=learn", "demos=10", *ppo, *TINY]), tmp_path / "learn")
+        # 4 batches x 2 epochs x 4 minibatches; one discriminator step offered per PPO step
+        assert s["algo"] == "ppo" and s["frames"] == 1024 and s["updates"] == 32 and s["disc_updates"] > 0
+        rows = list(csv.DictReader((tmp_path / "learn" / "train.csv").read_text().splitlines()))
+        assert [int(r["frames"]) for r in rows] == [0, 512, 1024]
+        assert {"loss_objective", "loss_critic", "disc_loss", "success_buffer"} <= set(rows[0])
+        # the rescaled DrS reward x0.1, from the discriminator: every step costs between 0.1 and ~0.22
+        means = [float(r["reward_mean"]) for r in rows if r["reward_mean"] not in ("", "nan")]
+        assert means and all(-0.25 <= m <= -0.1 for m in means)
+        r = train(
+            compose(
+                "maze",
+                overrides=[
+                    "phase=reuse",
+                    "reward.name=drs",
+                    f"reward.checkpoint={tmp_path / 'learn' / 'reward.pt'}",
+                    *ppo,
+                    *TINY,
+                ],
+            ),
+            tmp_path / "reuse",
+        )
+    assert r["algo"] == "ppo" and r["map"] == "test" and r["frames"] == 1024
+    assert (tmp_path / "reuse" / "policy.pt").is_file()

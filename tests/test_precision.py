@@ -10,7 +10,7 @@ from torchrl.modules import MLP
 
 from drs_torchrl.precision import OutputFloat32, PrecisionError, native_bf16, resolve_precision
 from drs_torchrl.trainers.apps import conf_dir
-from drs_torchrl.trainers.loop import Trainer
+from drs_torchrl.trainers.build import Run
 
 
 def _cpuinfo_flags() -> set[str]:
@@ -65,16 +65,16 @@ TINY = [
 def _trainer(tmp_path, precision):
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
         cfg = compose("learn", overrides=[*TINY, f"algo.precision={precision}"])
-    return Trainer(cfg, "learn", tmp_path)
+    return Run(cfg, "learn", tmp_path)
 
 
 @pytest.mark.sim
 def test_bf16_learner_multiplies_in_bf16_and_keeps_fp32_weights_state_and_losses(tmp_path):
     tr = _trainer(tmp_path, "bf16")
     assert tr.precision == "bf16"
-    before = {k: v.clone() for k, v in tr.loss.qvalue_network_params.items(True, True)}
+    before = {k: v.clone() for k, v in tr.updater.loss.qvalue_network_params.items(True, True)}
     seen = {}
-    hidden = next(m for m in tr.loss.qvalue_network.modules() if isinstance(m, torch.nn.Linear))
+    hidden = next(m for m in tr.updater.loss.qvalue_network.modules() if isinstance(m, torch.nn.Linear))
 
     def record(module, inputs, output):
         seen.setdefault("hidden", set()).add(output.dtype)
@@ -84,11 +84,11 @@ def test_bf16_learner_multiplies_in_bf16_and_keeps_fp32_weights_state_and_losses
     hook.remove()
     assert summary["precision"] == "bf16" and summary["updates"] > 0 and summary["disc_updates"] >= 0
     assert seen["hidden"] == {torch.bfloat16}  # every critic matrix product ran in bf16 (none escaped autocast in vmap)
-    params = dict(tr.loss.named_parameters())
+    params = dict(tr.updater.loss.named_parameters())
     assert params and all(p.dtype == torch.float32 for p in params.values())
-    after = dict(tr.loss.qvalue_network_params.items(True, True))
+    after = dict(tr.updater.loss.qvalue_network_params.items(True, True))
     assert any(not torch.equal(before[k], after[k]) for k in before)  # it trained
-    for opt in (tr.optim_actor, tr.optim_critic, tr.learner.optim):
+    for opt in (tr.updater.optimizers["actor"], tr.updater.optimizers["critic"], tr.learner.optim):
         for st in opt.state.values():
             assert st["exp_avg"].dtype == torch.float32 and st["exp_avg_sq"].dtype == torch.float32
     for d in tr.learned.discriminators.parameters():
@@ -101,7 +101,7 @@ def test_bf16_sac_loss_matches_fp32_on_the_same_batch(tmp_path):
     up to bf16 rounding of the matrix products (learning itself is compared in results/precision/)."""
     tr = _trainer(tmp_path, "fp32")
     tr.run()
-    sample = tr.replay.sample()
+    sample = tr.updater.replay.sample()
     losses = {}
     for name, ctx in (
         ("fp32", torch.autocast("cpu", enabled=False)),
@@ -109,7 +109,7 @@ def test_bf16_sac_loss_matches_fp32_on_the_same_batch(tmp_path):
     ):
         torch.manual_seed(0)
         with ctx:
-            out = tr.loss(sample.clone())
+            out = tr.updater.loss(sample.clone())
         losses[name] = {k: float(out[k]) for k in ("loss_actor", "loss_qvalue", "loss_alpha")}
         assert all(out[k].dtype == torch.float32 for k in ("loss_actor", "loss_qvalue"))
     for k, v in losses["fp32"].items():
@@ -128,10 +128,10 @@ def test_default_learner_is_bf16_exactly_where_native_with_the_critics_one_after
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
         cfg = compose("learn", overrides=TINY)
     assert cfg.algo.precision == "auto"
-    tr = Trainer(cfg, "learn", tmp_path)
+    tr = Run(cfg, "learn", tmp_path)
     try:
         assert tr.precision == ("bf16" if native_bf16("cpu") else "fp32")
-        assert tr.loss.deactivate_vmap  # autocast reaches every critic; faster than vmap here in fp32 too
+        assert tr.updater.loss.deactivate_vmap  # autocast reaches every critic; faster than vmap here in fp32 too
         saved = OmegaConf.load(tmp_path / "config.yaml")
         assert saved.algo.precision == tr.precision  # resolved: a resume elsewhere keeps the run's precision
     finally:

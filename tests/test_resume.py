@@ -64,7 +64,8 @@ def test_sigkill_then_resume_continues_from_the_saved_step(tmp_path):
     finally:
         if proc.poll() is None:
             proc.kill()
-    from drs_torchrl.trainers.loop import Trainer, find_training_state
+    from drs_torchrl.trainers.build import Run
+    from drs_torchrl.checkpoint import find_training_state
 
     state_dir = find_training_state(run_dir)
     saved_frames = int((state_dir / "COMPLETE").read_text())
@@ -73,15 +74,15 @@ def test_sigkill_then_resume_continues_from_the_saved_step(tmp_path):
 
     # the restored trainer holds exactly what was saved
     cfg = OmegaConf.load(run_dir / "config.yaml")
-    tr = Trainer(cfg, "learn", run_dir, resume=True)
+    tr = Run(cfg, "learn", run_dir, resume=True)
     try:
-        assert tr.frames == saved_frames and tr.updates == payload["counters"]["updates"]
-        assert len(tr.replay) == saved_frames  # every collected transition
+        assert tr.frames == saved_frames and tr.updater.updates == payload["counters"]["updates"]
+        assert len(tr.updater.replay) == saved_frames  # every collected transition
         assert tr.learner.stage_buffers.episodes_per_stage.tolist() == payload["learner"]["stage_buffer_episodes"]
         assert 0 < len(tr.learner.stage_buffers) <= saved_frames
         assert torch.equal(tr.learner.loss.recent_stages, payload["learner"]["disc_loss"]["recent_stages"])
-        assert tr.optim_critic.state_dict()["state"][0]["step"] == payload["counters"]["updates"]
-        assert torch.equal(tr.loss.log_alpha.detach(), payload["loss"]["log_alpha"])
+        assert tr.updater.optimizers["critic"].state_dict()["state"][0]["step"] == payload["counters"]["updates"]
+        assert torch.equal(tr.updater.loss.log_alpha.detach(), payload["loss"]["log_alpha"])
     finally:
         tr.close()
 

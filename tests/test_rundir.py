@@ -131,7 +131,7 @@ def test_a_full_disk_is_one_error_and_leaves_no_partial_files(tmp_path):
         from torchrl.data import LazyTensorStorage, ReplayBuffer
         from drs_torchrl.data.persistence import dump_buffer
         from drs_torchrl.rundir import DiskFullError
-        from drs_torchrl.trainers.loop import atomic_torch_save, atomic_write_text
+        from drs_torchrl.checkpoint import atomic_torch_save, atomic_write_text
 
         d, res = Path(sys.argv[1]), {}
         rb = ReplayBuffer(storage=LazyTensorStorage(1000))

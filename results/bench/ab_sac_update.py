@@ -21,7 +21,7 @@ from hydra import compose, initialize_config_dir
 
 from drs_torchrl.precision import autocast
 from drs_torchrl.trainers.apps import conf_dir
-from drs_torchrl.trainers.loop import Trainer
+from drs_torchrl.trainers.build import Run
 
 UNFUSED = ["algo.optim.fused=false", "reward.disc.fused=false"]
 WHOLE = "<compile the whole update>"  # not a config option: loss, backward, Adam steps and target update in one torch.compile
@@ -105,29 +105,29 @@ def trainer(algo, extra):
             ],
         )
     d = tempfile.mkdtemp()
-    Trainer(cfg, "learn", d).run()  # 1024 real PickCube transitions
-    tr = Trainer(cfg, "learn", d, resume=True)
-    tr.sac_update = compiled_whole_update(tr) if whole else tr._sac_step
+    Run(cfg, "learn", d).run()  # 1024 real PickCube transitions
+    tr = Run(cfg, "learn", d, resume=True)
+    tr.sac_update = compiled_whole_update(tr) if whole else tr.updater.step
     return tr
 
 
 def compiled_whole_update(tr):
     """The trainer's SAC step (same loss, optimisers and target updater) with everything after the
     sampling inside one ``torch.compile``: the route the issue suggests beyond compiling the loss."""
-    opts = (tr.optim_actor, tr.optim_critic, tr.optim_alpha)
+    opts = (tr.updater.optimizers["actor"], tr.updater.optimizers["critic"], tr.updater.optimizers["alpha"])
 
     def step(sample):
         with autocast(tr.precision, tr.device):
-            out = tr.loss(sample)
+            out = tr.updater.loss(sample)
         (out["loss_actor"] + out["loss_qvalue"] + out["loss_alpha"]).backward()
         for opt in opts:
             opt.step()
             opt.zero_grad(set_to_none=True)
-        tr.target_updater.step()
+        tr.updater.target_updater.step()
         return out.detach()
 
     compiled = torch.compile(step)
-    return lambda: compiled(tr.sac_batch())
+    return lambda: compiled(tr.updater.sample())
 
 
 def update(tr):

@@ -124,7 +124,7 @@ def bench_components(
     from tensordict import TensorDict
 
     from drs_torchrl.trainers.apps import conf_dir
-    from drs_torchrl.trainers.loop import Trainer
+    from drs_torchrl.trainers.build import Run
 
     def per_call_ms(fn, n=batch_reps, warm=5):
         for _ in range(warm):
@@ -151,13 +151,13 @@ def bench_components(
         )
     out: dict = {"algo": algo, "batch_size": int(cfg.algo.batch_size), "width": int(max(cfg.algo.hidden))}
     with tempfile.TemporaryDirectory() as d:
-        tr = Trainer(cfg, "learn", d)
+        tr = Run(cfg, "learn", d)
         tr.run()  # 2048 real transitions in the replay and stage buffers
-        tr = Trainer(cfg, "learn", d, resume=True)
-        out["sac_update_ms"] = per_call_ms(tr._sac_step)
+        tr = Run(cfg, "learn", d, resume=True)
+        out["sac_update_ms"] = per_call_ms(tr.updater.step)
         out["sac_update_ms_by_precision"] = {"fp32": out["sac_update_ms"]}
         out["sac_update_gflop"] = sac_update_gflop(tr)
-        sample = tr.replay.sample()
+        sample = tr.updater.replay.sample()
         nxt = sample.get("next")
         out["reward_recompute_ms"] = per_call_ms(lambda: tr.learned.reward(nxt), n=200)
         out["disc_update_ms"] = per_call_ms(tr.learner.update, n=200)
@@ -188,22 +188,22 @@ def bench_components(
             continue
         pcfg = OmegaConf.merge(cfg, {"algo": {"precision": prec}})
         with tempfile.TemporaryDirectory() as d:
-            Trainer(pcfg, "learn", d).run()
-            tr = Trainer(pcfg, "learn", d, resume=True)
-            out["sac_update_ms_by_precision"][prec] = per_call_ms(tr._sac_step)
+            Run(pcfg, "learn", d).run()
+            tr = Run(pcfg, "learn", d, resume=True)
+            out["sac_update_ms_by_precision"][prec] = per_call_ms(tr.updater.step)
             tr.close()
     if not compile_too:
         return out
     cfg.algo.compile = True
     with tempfile.TemporaryDirectory() as d:
         try:
-            tr = Trainer(cfg, "learn", d)
+            tr = Run(cfg, "learn", d)
             tr.run()
-            tr = Trainer(cfg, "learn", d, resume=True)
+            tr = Run(cfg, "learn", d, resume=True)
             t = time.perf_counter()
-            tr._sac_step()
+            tr.updater.step()
             out["compile_s"] = time.perf_counter() - t
-            out["sac_update_compiled_ms"] = per_call_ms(tr._sac_step)
+            out["sac_update_compiled_ms"] = per_call_ms(tr.updater.step)
             tr.close()
         except Exception as exc:  # reported, not hidden: the eager numbers stand
             out["compile_error"] = f"{type(exc).__name__}: {exc}"[:500]
@@ -308,7 +308,7 @@ def bench_learn(
     from hydra import compose, initialize_config_dir
 
     from drs_torchrl.trainers.apps import conf_dir
-    from drs_torchrl.trainers.loop import Trainer
+    from drs_torchrl.trainers.build import Run
 
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
         kind, _, threads = collector.partition(":")  # e.g. "background:2": the learner keeps 2 torch threads
@@ -336,7 +336,7 @@ def bench_learn(
     cfg.logger.tensorboard = False
     cfg.logger.interval = frames  # one row for the warm-up, one for the timed part
     with tempfile.TemporaryDirectory() as d:
-        tr = Trainer(cfg, "learn", d)
+        tr = Run(cfg, "learn", d)
         # fill the warm-up without timing it
         tr.run()
         import csv
@@ -361,9 +361,9 @@ def bench_learn(
 def bench_checkpoint(transitions: int) -> dict:
     """Size and write/read time of the training state of a run holding ``transitions`` transitions.
 
-    A real phase-1 Trainer (PickCube) collects 1024 real transitions; they are tiled until the
+    A real phase-1 Run (PickCube) collects 1024 real transitions; they are tiled until the
     replay buffer and the stage buffers each hold ``transitions``; then the state is saved (timed),
-    and a second Trainer resumes from it (timed).
+    and a second Run resumes from it (timed).
     """
     import shutil
     import tempfile
@@ -371,7 +371,7 @@ def bench_checkpoint(transitions: int) -> dict:
     from hydra import compose, initialize_config_dir
 
     from drs_torchrl.trainers.apps import conf_dir
-    from drs_torchrl.trainers.loop import Trainer
+    from drs_torchrl.trainers.build import Run
 
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
         cfg = compose(
@@ -389,13 +389,13 @@ def bench_checkpoint(transitions: int) -> dict:
         )
     d = Path(tempfile.mkdtemp(prefix="drs-ckpt-"))
     try:
-        tr = Trainer(cfg, "learn", d)
+        tr = Run(cfg, "learn", d)
         tr.run()  # 1024 real transitions, saved state included
-        tr = Trainer(cfg, "learn", d, resume=True)
-        real = tr.replay[: len(tr.replay)].clone()
+        tr = Run(cfg, "learn", d, resume=True)
+        real = tr.updater.replay[: len(tr.updater.replay)].clone()
         states = torch.cat(tr.learner.stage_buffers.snapshot_parts())
-        while len(tr.replay) < transitions:
-            tr.replay.extend(real[: transitions - len(tr.replay)])
+        while len(tr.updater.replay) < transitions:
+            tr.updater.replay.extend(real[: transitions - len(tr.updater.replay)])
         while len(tr.learner.stage_buffers) < transitions:
             tr.learner.stage_buffers.extend(states[: transitions - len(tr.learner.stage_buffers)])
         t = time.perf_counter()
@@ -404,9 +404,9 @@ def bench_checkpoint(transitions: int) -> dict:
         size = sum(f.stat().st_size for f in state.rglob("*") if f.is_file())
         tr.close()
         t = time.perf_counter()
-        tr2 = Trainer(cfg, "learn", d, resume=True)
+        tr2 = Run(cfg, "learn", d, resume=True)
         read_s = time.perf_counter() - t
-        ok = len(tr2.replay) == transitions and len(tr2.learner.stage_buffers) == transitions
+        ok = len(tr2.updater.replay) == transitions and len(tr2.learner.stage_buffers) == transitions
         tr2.close()
     finally:
         shutil.rmtree(d, ignore_errors=True)

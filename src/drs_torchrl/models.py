@@ -38,12 +38,14 @@ def make_sac_modules(
     hidden: Sequence[int] = (256, 256, 256),
     activation: type[nn.Module] = nn.ReLU,
     device: torch.device | str | None = None,
+    return_log_prob: bool = False,
 ) -> tuple[ProbabilisticActor, ValueOperator]:
     """A tanh-Gaussian actor and a Q-value network reading ``in_keys`` (+ ``"action"``).
 
     The actor's distribution is bounded by the action spec; several ``in_keys`` are concatenated
     (the stage indicators can be policy inputs, as in the authors' code). The modules are built on
-    ``device`` (default: the spec's device).
+    ``device`` (default: the spec's device). ``return_log_prob``: the actor also writes its actions' log-probability
+    (PPO's importance ratio); the parameters are the same either way, so a policy checkpoint loads into both.
     """
     in_keys = list(in_keys)
     n_obs = _in_features(observation_spec, in_keys)
@@ -70,7 +72,7 @@ def make_sac_modules(
         spec=action_spec,
         distribution_class=TanhNormal,
         distribution_kwargs={"low": action_spec.space.low, "high": action_spec.space.high},
-        return_log_prob=False,
+        return_log_prob=return_log_prob,
         default_interaction_type="random",
     )
     qnet = MLP(in_features=n_obs + n_act, out_features=1, num_cells=list(hidden), activation_class=activation)

@@ -270,7 +270,8 @@ def check_run(run: Run, root: Path, record: Path | None) -> str | None:
 
     from drs_torchrl.tasks import family_from_config
     from drs_torchrl.trainers import apps  # noqa: F401  (registers the resolvers the configs use)
-    from drs_torchrl.trainers.loop import ConfigError, validate_config
+    from drs_torchrl.errors import ConfigError
+    from drs_torchrl.trainers.validation import validate_config
 
     args = resolve_args(run, root, record)
     for raw, arg in zip(run.args, args):

@@ -170,7 +170,8 @@ def _run(cfg: DictConfig, phase: str) -> None:
 
     if not library_messages_requested(cfg):
         quiet_libraries()
-    from drs_torchrl.trainers.loop import NonFiniteError, train
+    from drs_torchrl.updaters.base import NonFiniteError
+    from drs_torchrl.trainers.build import train
 
     run_dir = HydraConfig.get().runtime.output_dir
     record = Path(run_dir) / HydraConfig.get().output_subdir if HydraConfig.get().output_subdir else None
@@ -216,7 +217,7 @@ def _run(cfg: DictConfig, phase: str) -> None:
             unlock_run_dir(d)  # the next job of a Hydra multirun may write here
     ev = summary.get("last_eval", {})
     print(
-        f"drs-{phase}: {summary['frames']} env steps, {summary['updates']} SAC updates in "
+        f"drs-{phase}: {summary['frames']} env steps, {summary['updates']} {summary.get('algo', 'sac').upper()} updates in "
         f"{summary['wall_time_s']:.0f}s ({summary['env_steps_per_s']:.1f} steps/s); "
         f"eval success {ev.get('success_rate', float('nan')):.2f}; run dir {run_dir}"
     )

@@ -1,10 +1,11 @@
-"""The ``make_*`` factories of the SAC trainer, in the shape of TorchRL's ``sota-implementations/sac``.
+"""The ``make_*`` factories of a run, in the shape of TorchRL's ``sota-implementations``.
 
 Each builds one TorchRL piece from the Hydra config and is usable on its own (from a notebook, or
-another TorchRL script): the task family's envs with their reward in the slot, SAC's actor and twin
-critics, TorchRL's ``SACLoss`` with its target updater and optimisers, the replay buffer whose
-sampling transform recomputes a learned reward, the reward-learning core, and the collector.
-:class:`~drs_torchrl.trainers.loop.Trainer` wires them into Algorithm 1.
+another TorchRL script): the task family's envs with their reward in the slot, the replay buffer whose
+sampling transform recomputes a learned reward, the reward-learning core, and the collector. The
+algorithm itself (SAC's actor, critics, ``SACLoss``, optimisers; PPO's) is ``algo.updater``
+(:mod:`drs_torchrl.updaters`).
+:class:`~drs_torchrl.trainers.build.Run` wires them into Algorithm 1.
 """
 
 from __future__ import annotations
@@ -18,16 +19,12 @@ from omegaconf import DictConfig, OmegaConf
 from torchrl.envs.transforms import DeviceCastTransform
 
 from drs_torchrl.envs.factory import make_family_env
-from drs_torchrl.models import make_sac_modules
 from drs_torchrl.precision import autocast
 from drs_torchrl.rewards import RewardSetup, dense_offset, new_reward_learner
 from drs_torchrl.tasks import TaskFamily
 
 __all__ = [
     "make_envs",
-    "make_sac_agent",
-    "make_loss_module",
-    "make_optimizers",
     "make_replay_buffer",
     "make_reward_learner",
     "make_collector",
@@ -66,39 +63,6 @@ def make_envs(cfg: DictConfig, family: TaskFamily, reward: RewardSetup, device: 
         env.append_transform(reward.frozen)
         eval_env.append_transform(reward.frozen.clone())
     return env, eval_env, env_kwargs
-
-
-def make_sac_agent(cfg: DictConfig, env, device: torch.device):
-    """SAC's tanh-normal actor and a Q-network template (``algo.hidden``, reading ``algo.policy_in_keys``)."""
-    a = cfg.algo
-    return make_sac_modules(
-        env.observation_spec, env.action_spec, list(a.policy_in_keys), list(a.hidden), device=device
-    )
-
-
-def make_loss_module(cfg: DictConfig, actor, qvalue, action_spec, device: torch.device, precision: str = "fp32"):
-    """TorchRL's ``SACLoss`` as ``algo.loss`` configures it (twin critics, auto target entropy), its
-    TD(0) value estimator at ``algo.gamma``, and the ``algo.target_update`` updater."""
-    a = cfg.algo
-    kwargs = {}
-    if precision != "fp32":
-        # torch.autocast does not reach inside torch.vmap (the twin critics' batched pass would stay
-        # fp32): in low precision the critics are evaluated one after the other, whatever algo.loss says
-        kwargs["deactivate_vmap"] = True
-    loss = instantiate(a.loss)(actor_network=actor, qvalue_network=qvalue, action_spec=action_spec, **kwargs)
-    loss.to(device)
-    loss.make_value_estimator(gamma=float(a.gamma))
-    return loss, instantiate(a.target_update)(loss)
-
-
-def make_optimizers(cfg: DictConfig, loss) -> dict[str, torch.optim.Optimizer]:
-    """One ``algo.optim`` each for the actor, the critics and the entropy coefficient."""
-    opt = instantiate(cfg.algo.optim)
-    return {
-        "actor": opt(list(loss.actor_network_params.values(True, True))),
-        "critic": opt(list(loss.qvalue_network_params.values(True, True))),
-        "alpha": opt([loss.log_alpha]),
-    }
 
 
 def make_replay_buffer(cfg: DictConfig, transform, device: torch.device, batch_size: int | None = None):

@@ -43,12 +43,12 @@ diagnostics and report live in :mod:`drs_torchrl.maze_analysis`.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import shutil
 import sys
 import time
-from collections import deque
 from pathlib import Path
 
 import hydra
@@ -58,7 +58,6 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDict, TensorDictBase
-from tensordict.nn import TensorDictSequential
 from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, ReplayBuffer
 from torchrl.envs import TransformedEnv
@@ -68,7 +67,6 @@ from torchrl.modules import MLP, EGreedyModule, QValueActor
 from torchrl.objectives import DQNLoss, ValueEstimators
 
 from drs_torchrl.provenance import code_version
-from drs_torchrl.data import TrajectoryAssembler
 from drs_torchrl.envs.maze import ACTIONS, GATES, MOVES, OBS_DIMS, ThreeRoomMaze, convert_observation, observation
 from drs_torchrl.learners import (
     DemoDiscriminatorLearner,
@@ -89,8 +87,11 @@ from drs_torchrl.maze_analysis import (  # noqa: F401 (re-exported: the maze's a
 )
 from drs_torchrl.console import console_script
 from drs_torchrl.run_logger import RunLogger
+from drs_torchrl.loop import EpisodeWindow, Progress, Schedule, run_algorithm1
 from drs_torchrl.rundir import lock_run_dir
 from drs_torchrl.transforms import ClassifierReward, DrSReward, SemiSparseReward, StageIndicator, load_reward
+from drs_torchrl.updaters.dqn import DQNUpdater
+from drs_torchrl.updaters.ppo import make_ppo_updater
 
 # the paper's learned baselines (Sec. 5.2, Appendix F.2) on the same core: classifier -> (output, offset),
 # as in conf/reward/*.yaml of the SAC families (every step costs: log D <= 0, D - 1 <= 0)
@@ -99,40 +100,6 @@ LEARNED = ("drs", *CLASSIFIERS)  # what phase=learn can learn
 REWARDS = ("drs", "sparse", "semi_sparse", "dense", *CLASSIFIERS, "gail_stages")
 REWARD_INPUTS = ("state_action", "next_state")  # R(s, a) as the appendix's tabular analysis, or R(s') as Sec. 4.3
 FAMILY = "three_room_maze"
-RB_KEYS = [
-    "observation",
-    "action",
-    ("next", "observation"),
-    ("next", "reward"),
-    ("next", "done"),
-    ("next", "terminated"),
-    ("next", "truncated"),
-    ("next", "stage"),
-]
-# n-step targets: whether the observation a window ends on is terminal (see terminal_at_window_end)
-TERMINAL_AT_OBS = ("next", "terminal_obs")
-
-
-def mark_terminal_obs(batch: TensorDictBase) -> TensorDictBase:
-    """Copy ``("next", "terminated")`` to :data:`TERMINAL_AT_OBS` before n-step windows are formed.
-
-    TorchRL 0.14's ``MultiStepTransform`` cuts a window at the episode's end and gathers the
-    ``"next"`` entries of the window's last step, *except* the done keys, which stay those of the
-    window's first step. A window that reaches the goal a few steps ahead therefore ends on the
-    terminal observation with ``terminated=False``, and the TD target bootstraps from the value of
-    a state that has none. A copy under another name is gathered with the observation, so it says
-    whether the observation the window ends on is terminal.
-    """
-    batch.set(TERMINAL_AT_OBS, batch.get(("next", "terminated")).clone())
-    return batch
-
-
-def terminal_at_window_end(sample: TensorDictBase) -> TensorDictBase:
-    """Set ``("next", "terminated")`` (and ``"done"``) of sampled n-step windows from :data:`TERMINAL_AT_OBS`."""
-    term = sample.get(TERMINAL_AT_OBS)
-    sample.set(("next", "terminated"), term)
-    sample.set(("next", "done"), sample.get(("next", "done")) | term)
-    return sample
 
 
 # ----------------------------------------------------------------------------- reward on (s, a)
@@ -250,7 +217,7 @@ def make_qnet(cfg: DictConfig, action_spec) -> QValueActor:
     return QValueActor(net, in_keys=["observation"], spec=action_spec)
 
 
-def evaluate(actor, env: TransformedEnv) -> dict[str, float]:
+def evaluate_greedy(actor, env: TransformedEnv) -> dict[str, float]:
     """One greedy episode in each of the env's grids: success rate and mean episode length."""
     with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
         td = env.rollout(env.base_env.max_steps, actor, break_when_any_done=False)
@@ -331,9 +298,11 @@ def validate(cfg: DictConfig) -> None:
             cfg.total_frames > 0 and cfg.num_envs > 0 and cfg.max_steps > 0,
             "total_frames, num_envs and max_steps must be > 0",
         ),
+        (cfg.get("agent", "dqn") in ("dqn", "ppo"), f"agent must be dqn or ppo, got {cfg.get('agent')!r}"),
         (
-            cfg.dqn.frames_per_batch % cfg.num_envs == 0,
-            f"dqn.frames_per_batch ({cfg.dqn.frames_per_batch}) must be a multiple of num_envs ({cfg.num_envs})",
+            algo_config(cfg).frames_per_batch % cfg.num_envs == 0,
+            f"{cfg.get('agent', 'dqn')}.frames_per_batch ({algo_config(cfg).frames_per_batch}) must be a multiple of "
+            f"num_envs ({cfg.num_envs})",
         ),
         (cfg.dqn.utd > 0 and cfg.dqn.batch_size > 0, "dqn.utd and dqn.batch_size must be > 0"),
         (0 < cfg.dqn.gamma <= 1, "dqn.gamma must be in (0, 1]"),
@@ -585,224 +554,256 @@ def make_dqn_loss(cfg: DictConfig, actor: QValueActor, action_spec):
     return loss, instantiate(d.target_update)(loss), torch.optim.Adam(loss.parameters(), lr=float(d.lr))
 
 
+# ----------------------------------------------------------------------------- the algorithm
+def algo_config(cfg: DictConfig) -> DictConfig:
+    """The settings of the run's agent: ``cfg.dqn`` (``agent=dqn``) or ``cfg.ppo`` (``agent=ppo``)."""
+    return cfg.ppo if cfg.get("agent", "dqn") == "ppo" else cfg.dqn
+
+
+def make_updater(cfg: DictConfig, env, drs, learn: bool):
+    """The run's :class:`~drs_torchrl.updaters.base.Updater`: DQN (the paper's maze agent) or PPO."""
+    if cfg.get("agent", "dqn") == "ppo":
+        p = cfg.ppo
+        return make_ppo_updater(
+            env,
+            optim=functools.partial(torch.optim.Adam, lr=float(p.lr)),
+            hidden=list(p.hidden),
+            policy_in_keys=["observation"],
+            gamma=float(p.gamma),
+            lmbda=float(p.lmbda),
+            epochs=int(p.epochs),
+            minibatch_size=int(p.batch_size),
+            clip_epsilon=float(p.clip_epsilon),
+            entropy_coeff=float(p.entropy_coeff),
+            critic_coeff=float(p.critic_coeff),
+            max_grad_norm=float(p.grad_clip),
+            # phase 1: the batch's reward from the discriminator of the moment (the env's is the collection-time one)
+            reward=StateActionReward(drs, cfg.coords, float(p.get("reward_scale", 1.0))) if (learn and drs) else None,
+        )
+    actor = make_qnet(cfg, env.action_spec)
+    loss, target, opt = make_dqn_loss(cfg, actor, env.action_spec)
+    d = cfg.dqn
+    return DQNUpdater(
+        actor,
+        make_exploration(cfg, env.action_spec),
+        loss,
+        target,
+        opt,
+        make_replay_buffer(cfg, drs),
+        utd=float(d.utd),
+        learning_starts=int(d.learning_starts),
+        grad_clip=float(d.grad_clip),
+        n_step=int(d.n_steps) > 1,
+    )
+
+
+class _MazeLearner:
+    """The reward learner as the loop sees it: DrS's stage buffers file the (s, a) pairs of each finished episode
+    (:func:`sa_trajectory`); GAIL draws the agent's (s, a, s') from a flat buffer of its own (the DQN's holds n-step
+    windows); everything else goes to the learner as it is."""
+
+    def __init__(self, learner, cfg: DictConfig, drs):
+        self.inner, self.cfg, self.drs = learner, cfg, drs
+        self.agent_rb = None
+        if isinstance(learner, DemoDiscriminatorLearner):
+            self.agent_rb = ReplayBuffer(storage=LazyTensorStorage(int(cfg.reward.classifier.buffer_size)))
+            learner.attach(self.agent_rb)
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+    def observe(self, batch, episodes) -> None:
+        if self.agent_rb is not None:
+            self.agent_rb.extend(batch.reshape(-1).select("observation", "action", ("next", "observation")))
+        if isinstance(self.inner, DrSLearner):  # Algorithm 1: every finished episode into the stage buffers
+            rc, on_next = reward_coords(self.drs), reads_next_state(self.drs)
+            episodes = [
+                sa_trajectory(ep, obs_coords=self.cfg.coords, reward_coords=rc, next_state=on_next) for ep in episodes
+            ]
+        self.inner.observe(batch, episodes)
+
+    def update(self):
+        return self.inner.update()
+
+
 # ----------------------------------------------------------------------------- training
 def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
-    """Phase 1 or phase 2 (or a baseline) of the maze experiment; writes into ``run_dir``."""
+    """Phase 1 or phase 2 (or a baseline) of the maze experiment, through the loop of Algorithm 1
+    (:func:`drs_torchrl.loop.run_algorithm1`); writes into ``run_dir``."""
     validate(cfg)
     run_dir = Path(run_dir)
     torch.set_num_threads(int(cfg.num_threads))
     torch.manual_seed(int(cfg.seed))
     np.random.seed(int(cfg.seed))
-    learn, d = cfg.phase == "learn", cfg.dqn
+    learn, a = cfg.phase == "learn", algo_config(cfg)
+    ppo = cfg.get("agent", "dqn") == "ppo"
     map_name = cfg.map or ("train" if learn else "test")
     check_run_dir(run_dir, bool(cfg.get("overwrite", False)))
     learner, drs = make_reward(cfg, map_name, learn)
     # the run directory is written only once the reward (and its checkpoint) is known to be usable
     run_dir.mkdir(parents=True, exist_ok=True)
     OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
-    n_steps, scale = int(d.n_steps), float(d.get("reward_scale", 1.0))
-    # n-step sums are formed when transitions are stored, so then the env writes R(s, a) (see the module docstring)
+    scale = float(a.get("reward_scale", 1.0))
+    # the env writes R(s, a) where the agent does not recompute it: n-step sums (formed when transitions are
+    # stored) and PPO's batches (see the module docstring)
+    in_env = drs if (int(cfg.dqn.n_steps) > 1 or ppo) else None
     env = make_env(
-        map_name,
-        cfg.num_envs,
-        cfg.max_steps,
-        cfg.seed,
-        cfg.reward.name,
-        cfg.coords,
-        drs if n_steps > 1 else None,
-        float(cfg.reward.dense_coef),
-        scale,
-    )
+        map_name, cfg.num_envs, cfg.max_steps, cfg.seed, cfg.reward.name, cfg.coords, in_env,
+        float(cfg.reward.dense_coef), scale,
+    )  # fmt: skip
     eval_env = make_env(map_name, cfg.eval.episodes, cfg.max_steps, cfg.seed + 10_000, cfg.reward.name, cfg.coords)
-    actor = make_qnet(cfg, env.action_spec)
-    explore = make_exploration(cfg, env.action_spec)
-    rb = make_replay_buffer(cfg, drs)
-    loss, target, opt = make_dqn_loss(cfg, actor, env.action_spec)
+    updater = make_updater(cfg, env, drs, learn)
     collector = Collector(
         env,
-        TensorDictSequential(actor, explore),
-        frames_per_batch=int(d.frames_per_batch),
+        updater.policy,
+        frames_per_batch=int(a.frames_per_batch),
         total_frames=int(cfg.total_frames),
         auto_register_policy_transforms=False,
     )
-    log = _MazeLog(cfg, run_dir, actor, eval_env, explore, learner)
-    assembler, frames, owed = TrajectoryAssembler(), 0, 0.0
-    rc = reward_coords(drs) if drs is not None else None
-    agent_rb = None
-    if learner is not None:
-        learner.prepare(env)  # ORIL: random-walk episodes and the offline fit, before the first step
-        if isinstance(learner, DemoDiscriminatorLearner):  # GAIL draws the agent's (s, a, s') from a flat buffer
-            agent_rb = ReplayBuffer(storage=LazyTensorStorage(int(cfg.reward.classifier.buffer_size)))
-            learner.attach(agent_rb)
+    record = _MazeRecord(
+        RunLogger(run_dir, tensorboard=bool(cfg.get("tensorboard", True)), csv_files=True),
+        learner,
+        getattr(updater, "explore", None),
+        bool(cfg.verbose),
+        ("loss_objective", "loss_critic") if ppo else ("dqn_loss",),
+    )
+    episodes = EpisodeWindow(100, 1, lambda ep: ep.get(("next", "reward")))
+    wrapped = _MazeLearner(learner, cfg, drs) if learner is not None else None
+
+    def evaluate() -> dict[str, float]:
+        window = episodes.row()
+        return {
+            **evaluate_greedy(updater.eval_policy, eval_env),
+            "train_success": window.get("success_rate", float("nan")),
+            "train_length": window.get("episode_length", float("nan")),
+        }
+
+    def save() -> dict[str, str]:
+        torch.save(
+            updater.policy_checkpoint()["qnet"] if not ppo else updater.actor.state_dict(), run_dir / "policy.pt"
+        )
+        return {"policy": str(run_dir / "policy.pt")}
+
     try:
-        for batch in collector:
-            log.maybe_row(frames)
-            frames += batch.numel()
-            rb.extend(mark_terminal_obs(batch.select(*RB_KEYS)) if n_steps > 1 else batch.reshape(-1).select(*RB_KEYS))
-            episodes = assembler.add(batch)
-            log.episodes(episodes)
-            if agent_rb is not None:
-                agent_rb.extend(batch.reshape(-1).select("observation", "action", ("next", "observation")))
-            if isinstance(learner, DrSLearner):  # Algorithm 1: every finished episode into the stage buffers
-                learner.observe(
-                    batch,
-                    [
-                        sa_trajectory(ep, obs_coords=cfg.coords, reward_coords=rc, next_state=reads_next_state(drs))
-                        for ep in episodes
-                    ],
-                )
-            elif learner is not None:  # VICE-RAQ labels every visited state; ORIL and GAIL need nothing here
-                learner.observe(batch, episodes)
-            explore.step(batch.numel())
-            owed += float(d.utd) * batch.numel() if frames >= int(d.learning_starts) else 0.0
-            while owed >= 1:
-                owed -= 1
-                sample = rb.sample()
-                out = loss(terminal_at_window_end(sample) if n_steps > 1 else sample)
-                opt.zero_grad(set_to_none=True)
-                out["loss"].backward()
-                torch.nn.utils.clip_grad_norm_(loss.parameters(), float(d.grad_clip))
-                opt.step()
-                target.step()
-                log.update(out, sample, learner.update() if learner is not None else None)
-        log.maybe_row(frames, force=True)
+        if learner is not None:
+            learner.prepare(env)  # ORIL: random-walk episodes and the offline fit, before the first step
+        record.log("eval", 0, evaluate())  # the untrained agent: every curve starts at 0 env steps
+        interval = int(cfg.eval.interval)
+        summary = run_algorithm1(
+            collector,
+            updater,
+            learner=wrapped,
+            episodes=episodes,
+            logger=record,
+            evaluate=evaluate,
+            save=save,
+            # evaluation and training statistics share the row; no training state (a maze run takes minutes)
+            schedule=Schedule(int(cfg.total_frames), interval, interval, checkpoint_interval=10**12),
+            progress=Progress(),
+            name="drs-maze",
+            progress_bar=False,
+        )
     finally:
         collector.shutdown()
-        log.close()
-    return log.finish(frames, map_name, drs, learner)
+        record.close()
+    if summary["interrupted"]:  # no training state to resume from: the run is left unfinished (no summary.json)
+        return summary
+    return _finish(cfg, run_dir, summary, record, map_name, drs, learner, updater)
 
 
-class _MazeLog:
-    """The maze run's record: greedy evaluations every ``eval.interval`` env steps, training
-    success, DQN and discriminator statistics, through :class:`~drs_torchrl.run_logger.RunLogger`
-    (``train.csv``, TensorBoard under ``tb/``), then ``summary.json``, ``policy.pt`` and the
-    reward checkpoint and figure."""
+class _MazeRecord:
+    """The maze run's ``train.csv`` (and TensorBoard under ``tb/``): one row per greedy evaluation, holding the
+    evaluation, the training success, epsilon, and the update and discriminator statistics the loop logged since
+    the previous row (the loop's train rows come at the same env steps and are folded into it)."""
 
-    def __init__(self, cfg, run_dir: Path, actor, eval_env, explore, learner):
-        self.cfg, self.run_dir, self.actor, self.eval_env, self.explore, self.learner = (
-            cfg,
-            run_dir,
-            actor,
-            eval_env,
-            explore,
-            learner,
-        )
-        self.logger = RunLogger(run_dir, tensorboard=bool(cfg.get("tensorboard", True)), csv_files=True)
-        self.recent: deque = deque(maxlen=100)
-        self.window, self.rows, self.updates, self.next_eval = _Window(), [], 0, 0
+    def __init__(self, logger: RunLogger, learner, explore, verbose: bool, loss_keys=("dqn_loss",)):
+        self.logger, self.learner, self.explore, self.verbose = logger, learner, explore, verbose
+        self.loss_keys = tuple(loss_keys)
+        self.pending: dict = {}
+        self.rows: list[dict] = []
         self.t0, self.cpu0 = time.perf_counter(), time.process_time()
 
-    def episodes(self, episodes) -> None:
-        for ep in episodes:
-            self.recent.append((int(ep.get(("next", "stage")).max()), ep.shape[0]))
-
-    def update(self, dqn_out, sample, disc_out) -> None:
-        self.updates += 1
-        r1 = sample.get(("next", "original_reward"), None)  # n-step windows keep the one-step reward here
-        self.window.add(
-            dqn_loss=float(dqn_out["loss"].detach()),
-            reward_mean=float((r1 if r1 is not None else sample.get(("next", "reward"))).mean()),
-        )
-        if disc_out is not None:  # DrS: per-stage keys (one stage here); a classifier: loss and accuracy
-            self.window.add(
-                disc_loss=float(disc_out.get("loss_0", disc_out.get("loss"))),
-                disc_accuracy=float(disc_out.get("accuracy_0", disc_out.get("accuracy"))),
-            )
-
-    def maybe_row(self, frames: int, force: bool = False) -> None:
-        if frames < self.next_eval and not force:
+    def log(self, stream: str, frames: int, row: dict) -> None:
+        if stream == "train":
+            self.pending = row
             return
-        self.next_eval += int(self.cfg.eval.interval)
-        row = {
+        p, nan = self.pending, float("nan")
+        out = {
             "frames": frames,
             "wall_s": round(time.perf_counter() - self.t0, 2),
-            "updates": self.updates,
-            "epsilon": float(self.explore.eps),
-            **evaluate(self.actor, self.eval_env),
-            "train_success": float(np.mean([s for s, _ in self.recent])) if self.recent else float("nan"),
-            "train_length": float(np.mean([n for _, n in self.recent])) if self.recent else float("nan"),
-            "dqn_loss": float("nan"),
-            "reward_mean": float("nan"),
-            **self.window.flush(),
+            "updates": int(p.get("updates", self.rows[-1]["updates"] if self.rows else 0)),
+            "epsilon": float(self.explore.eps) if self.explore is not None else nan,
+            **row,
+            **{k: p.get(k, nan) for k in self.loss_keys},
+            "reward_mean": p.get("reward_mean", nan),
         }
         if isinstance(self.learner, DrSLearner):
             counts = self.learner.stage_buffers.stage_counts()
-            row.update(
+            out.update(
                 success_buffer=int(counts[1]),
                 failure_buffer=int(counts[0]),
                 disc_active=float(self.learner.loss.training_mask()[0]),
             )
         elif self.learner is not None:
-            row.update(self.learner.log_row())
-        if self.learner is not None:
-            row["disc_updates"] = self.learner.updates
-            row.setdefault("disc_loss", float("nan"))
-            row.setdefault("disc_accuracy", float("nan"))
-        self.logger.log("train", frames, row)
-        self.rows.append(row)
-        if self.cfg.verbose:
+            out.update(self.learner.log_row())
+        if self.learner is not None:  # DrS: per-stage keys (one stage here); a classifier: loss and accuracy
+            out["disc_updates"] = self.learner.updates
+            out["disc_loss"] = p.get("disc_loss_0", p.get("disc_loss", nan))
+            out["disc_accuracy"] = p.get("disc_accuracy_0", p.get("disc_accuracy", nan))
+        self.pending = {}
+        self.logger.log("train", frames, out)
+        self.rows.append(out)
+        if self.verbose:
             print(
-                f"[{row['wall_s']:7.1f}s] frames {frames:7d}  eval success {row['eval_success']:.2f}  train success "
-                f"{row['train_success']:.2f}  eps {row['epsilon']:.2f}",
+                f"[{out['wall_s']:7.1f}s] frames {frames:7d}  eval success {out['eval_success']:.2f}  train success "
+                f"{out['train_success']:.2f}  eps {out['epsilon']:.2f}",
                 flush=True,
             )
+
+    def flush(self) -> None:
+        self.logger.flush()
 
     def close(self) -> None:
         self.logger.close()
 
-    def finish(self, frames: int, map_name: str, drs, learner) -> dict:
-        cfg, wall = self.cfg, time.perf_counter() - self.t0
-        summary = {
-            "phase": cfg.phase,
-            "map": map_name,
-            "reward": cfg.reward.name,
-            "reward_scale": float(cfg.dqn.get("reward_scale", 1.0)),
-            "seed": int(cfg.seed),
-            "code": code_version(),
-            "reward_input": ("next_state" if reads_next_state(drs) else "state_action") if drs is not None else None,
-            "reward_alpha": getattr(drs, "alpha", None),
-            "reward_coords": reward_coords(drs) if (drs is not None and reward_coords(drs) != cfg.coords) else None,
-            "frames": frames,
-            "updates": self.updates,
-            "wall_time_s": round(wall, 1),
-            "cpu_time_s": round(time.process_time() - self.cpu0, 1),
-            "env_steps_per_s": round(frames / wall, 1),
-            "final_eval_success": self.rows[-1]["eval_success"],
-            "final_eval_length": self.rows[-1]["eval_length"],
-            "mean_eval_success_last3": float(np.mean([r["eval_success"] for r in self.rows[-3:]])),
-        }
-        torch.save(self.actor.state_dict(), self.run_dir / "policy.pt")
-        if learner is not None:
-            summary["reward_checkpoint"] = str(drs.save(self.run_dir / "reward.pt"))
-            summary["disc_updates"] = learner.updates
-            if isinstance(learner, DrSLearner):
-                summary["stage_buffer_counts"] = learner.stage_buffers.stage_counts().tolist()
-            else:
-                summary.update(learner.summary())
-        if drs is not None:
-            maps = ("train", map_name if map_name != "train" else "test")
-            summary["reward_map"] = str(
-                plot_reward_map(drs, self.run_dir / "reward_map.png", tuple(cfg.plot_goal), maps)
-            )
-            summary["reward_diagnostics"] = {m: reward_diagnostics(drs, m, cfg.max_steps) for m in GATES}
-        (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
-        return summary
 
-
-class _Window:
-    """Means of scalars logged since the last row."""
-
-    def __init__(self):
-        self.values: dict[str, list[float]] = {}
-
-    def add(self, **kv):
-        for k, v in kv.items():
-            self.values.setdefault(k, []).append(v)
-
-    def flush(self) -> dict[str, float]:
-        out = {k: float(np.mean(v)) if v else float("nan") for k, v in self.values.items()}
-        self.values = {k: [] for k in self.values}
-        return out
+def _finish(cfg, run_dir: Path, loop_summary: dict, record: _MazeRecord, map_name: str, drs, learner, updater) -> dict:
+    """``summary.json``, the reward checkpoint and its figure."""
+    rows, wall = record.rows, time.perf_counter() - record.t0
+    summary = {
+        "phase": cfg.phase,
+        "map": map_name,
+        "reward": cfg.reward.name,
+        "algo": updater.name,
+        "reward_scale": float(algo_config(cfg).get("reward_scale", 1.0)),
+        "seed": int(cfg.seed),
+        "code": code_version(),
+        "reward_input": ("next_state" if reads_next_state(drs) else "state_action") if drs is not None else None,
+        "reward_alpha": getattr(drs, "alpha", None),
+        "reward_coords": reward_coords(drs) if (drs is not None and reward_coords(drs) != cfg.coords) else None,
+        "frames": loop_summary["frames"],
+        "updates": updater.updates,
+        "wall_time_s": round(wall, 1),
+        "cpu_time_s": round(time.process_time() - record.cpu0, 1),
+        "env_steps_per_s": round(loop_summary["frames"] / wall, 1),
+        "interrupted": loop_summary["interrupted"],
+        "final_eval_success": rows[-1]["eval_success"],
+        "final_eval_length": rows[-1]["eval_length"],
+        "mean_eval_success_last3": float(np.mean([r["eval_success"] for r in rows[-3:]])),
+    }
+    if learner is not None:
+        summary["reward_checkpoint"] = str(drs.save(run_dir / "reward.pt"))
+        summary["disc_updates"] = learner.updates
+        if isinstance(learner, DrSLearner):
+            summary["stage_buffer_counts"] = learner.stage_buffers.stage_counts().tolist()
+        else:
+            summary.update(learner.summary())
+    if drs is not None:
+        maps = ("train", map_name if map_name != "train" else "test")
+        summary["reward_map"] = str(plot_reward_map(drs, run_dir / "reward_map.png", tuple(cfg.plot_goal), maps))
+        summary["reward_diagnostics"] = {m: reward_diagnostics(drs, m, cfg.max_steps) for m in GATES}
+    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    return summary
 
 
 # ----------------------------------------------------------------------------- CLI
@@ -833,6 +834,13 @@ def main(cfg: DictConfig) -> None:
     except (MazeConfigError, ValueError, FileNotFoundError) as exc:
         print(f"drs-maze: error: {exc}", file=sys.stderr)
         sys.exit(2)
+    if s.get("interrupted"):
+        print(
+            f"drs-maze: interrupted at {s['frames']} env steps; a maze run keeps no training state: run it again "
+            "(overwrite=true)",
+            file=sys.stderr,
+        )
+        sys.exit(128 + int(s.get("signal", 2)))
     print(
         f"drs-maze: {s['phase']} on the {s['map']} map with the {s['reward']} reward: {s['frames']} env steps in "
         f"{s['wall_time_s']:.0f}s; greedy eval success {s['final_eval_success']:.2f}; run dir {run_dir}"

@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# Issue 46: the same runs with the code before the one loop (OLD, a commit) and with this checkout, compared column by
+# column (train.csv and eval.csv; the timing columns left out). Usage, from the repository root:
+#   bash results/loop_refactor/equivalence.sh 22d59b1 > results/loop_refactor/equivalence.txt
+set -euo pipefail
+OLD=${1:?usage: equivalence.sh OLD_COMMIT}
+ROOT=$(pwd); WT=$(mktemp -d)/old; OUT=$(mktemp -d)
+git worktree add --detach "$WT" "$OLD" >/dev/null 2>&1; ln -s "$ROOT/.venv" "$WT/.venv"
+trap 'git worktree remove --force "$WT"' EXIT
+COMMON="algo.hidden=[64,64] logger.interval=500 eval.interval=1500 eval.episodes=2 checkpoint_interval=1500
+  stop_at_success=null logger.progress_bar=false logger.tensorboard=false torch_threads=1 seed=5
+  algo.collector._target_=torchrl.collectors.Collector"
+declare -A RUNS=(
+  [sac_learn_turn_valve]="drs-learn env=turn_valve total_frames=3000 algo.learning_starts=500 $COMMON"
+  [sac_reuse_pick_cube_semi_sparse]="drs-reuse env=pick_cube reward=semi_sparse total_frames=2000 algo.learning_starts=500 $COMMON"
+  [dqn_maze_learn]="drs-maze phase=learn num_envs=8 max_steps=40 total_frames=4096 dqn.frames_per_batch=128 dqn.learning_starts=256 dqn.batch_size=32 eval.interval=1024 eval.episodes=8 verbose=false tensorboard=false demos=10 seed=3"
+)
+echo "# old: $(git rev-parse --short "$OLD"), new: $(git rev-parse --short HEAD)$(git diff --quiet HEAD -- src conf || echo ' + uncommitted changes'), $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2)"
+for name in "${!RUNS[@]}"; do
+  read -r exe args <<<"${RUNS[$name]}"
+  (cd "$WT" && PYTHONPATH="$WT/src" .venv/bin/$exe $args hydra.run.dir="$OUT/old_$name" >/dev/null 2>&1)
+  env -u PYTHONPATH .venv/bin/$exe $args hydra.run.dir="$OUT/new_$name" >/dev/null 2>&1
+  .venv/bin/python - "$OUT/old_$name" "$OUT/new_$name" "$name" <<'PY'
+import sys
+from pathlib import Path
+import pandas as pd
+old, new, name = Path(sys.argv[1]), Path(sys.argv[2]), sys.argv[3]
+for f in ("train.csv", "eval.csv"):
+    if not (old / f).is_file():
+        continue
+    a, b = pd.read_csv(old / f), pd.read_csv(new / f)
+    timing = ("_per_s", "frac_time", "wall_s")
+    cols = [c for c in a.columns if c in b.columns and not any(t in c for t in timing)]
+    diff = float((a[cols] - b[cols]).abs().max().max()) if len(a) == len(b) else float("nan")
+    print(f"{name} {f}: rows {len(a)} / {len(b)}, columns only old {sorted(set(a.columns) - set(b.columns))}, "
+          f"only new {sorted(set(b.columns) - set(a.columns))}, max |old - new| over {len(cols)} columns: {diff:g}")
+PY
+done

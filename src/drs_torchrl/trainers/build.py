@@ -1,0 +1,540 @@
+"""A drs-learn / drs-reuse run built from its Hydra config: the pieces the loop of Algorithm 1 receives.
+
+:class:`Run` builds, in order: the reward slot (a frozen reward in the env, or a learner for phase 1), the task
+family's envs, the demonstrations, the reward learner, the algorithm's updater (``algo.updater``: SAC, PPO, ...),
+the checkpointer and the logger; :meth:`Run.run` builds the collector for the remaining budget and hands it all
+to :func:`drs_torchrl.loop.run_algorithm1`.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import random
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from hydra.utils import get_class, instantiate
+from omegaconf import DictConfig, OmegaConf, open_dict
+from torchrl.collectors import AsyncCollector
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+from tqdm.auto import tqdm
+
+from drs_torchrl.checkpoint import (
+    Checkpointer,
+    TrainingStateError,
+    atomic_write_text,
+    find_training_state,
+    rng_state,
+    set_rng_state,
+)
+from drs_torchrl.data.demo_mix import (
+    AUTO_SAC_SHARE,
+    carries_actions,
+    demo_replay_buffer,
+    requested_sac_share,
+    share_problems,
+)
+from drs_torchrl.demos import check_demos, load_demos, restage_demos, variant_mismatches
+from drs_torchrl.envs.factory import make_family_env
+from drs_torchrl.errors import ConfigError
+from drs_torchrl.loop import EpisodeWindow, Progress, Schedule, aggregate_episodes, episode_summary, run_algorithm1
+from drs_torchrl.models import POLICY_FORMAT, read_policy_checkpoint
+from drs_torchrl.precision import describe_precision, grad_scaler, resolve_precision
+from drs_torchrl.provenance import code_version
+from drs_torchrl.rewards import LEARNED, reward_setup
+from drs_torchrl.run_logger import RunLogger
+from drs_torchrl.signals import worker_env
+from drs_torchrl.tasks import TASK_OBSERVATION_KEY, family_from_config
+from drs_torchrl.trainers.factories import make_collector, make_envs, make_replay_buffer, make_reward_learner
+from drs_torchrl.trainers.validation import collector_for_device, collects_in_background, validate_config
+from drs_torchrl.transforms.classifier_reward import ClassifierReward
+from drs_torchrl.updaters.base import backward_and_step
+
+# the SAC updater of runs whose saved config predates algo.updater (read from conf/algo/sac_cpu.yaml)
+_DEFAULT_ALGO = "sac_cpu"
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def _resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+def _ensure_updater_config(cfg: DictConfig) -> None:
+    """A config saved before ``algo.updater`` existed (an older run being resumed) trains SAC, as it did."""
+    if cfg.algo.get("updater") is not None:
+        return
+    from drs_torchrl.trainers.apps import conf_dir
+
+    node = OmegaConf.load(Path(conf_dir()) / "algo" / f"{_DEFAULT_ALGO}.yaml").updater
+    with open_dict(cfg):
+        cfg.algo.updater = node
+
+
+def save_config(cfg: DictConfig, path: Path) -> None:
+    """The run's config, resolved, except ``algo.updater``: that node only wires the ``algo`` settings into the
+    updater's builder (``${algo.gamma}``, ...), so it is kept as links and a config edited later (or a resume that
+    changes a setting) builds the updater from the settings as they are, not from a stale copy."""
+    data = OmegaConf.to_container(cfg, resolve=True)
+    data["algo"]["updater"] = OmegaConf.to_container(cfg.algo.updater, resolve=False)
+    OmegaConf.save(OmegaConf.create(data), path)
+
+
+class Run:
+    """The built pieces of one drs-learn / drs-reuse run (``resume=True``: restored from its training state)."""
+
+    def __init__(self, cfg: DictConfig, phase: str, run_dir: str | Path, *, resume: bool = False):
+        self.env = self.eval_env = self.collector = self.logger = None
+        try:
+            self._build(cfg, phase, run_dir, resume)
+        except BaseException:
+            self.close()
+            raise
+
+    def _build(self, cfg: DictConfig, phase: str, run_dir: str | Path, resume: bool) -> None:
+        validate_config(cfg, phase)
+        self.cfg, self.phase, self.run_dir = cfg, phase, Path(run_dir)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        if resume:
+            find_training_state(self.run_dir)  # fail before building anything
+        seed_everything(int(cfg.seed))
+        if cfg.get("torch_threads"):
+            torch.set_num_threads(int(cfg.torch_threads))
+        self.device = device = _resolve_device(str(cfg.device))
+        # algo.precision: autocast of the learner's forward passes, fp32 master weights (drs_torchrl.precision)
+        self.precision = resolve_precision(str(cfg.algo.get("precision") or "fp32"), device)
+        if cfg.algo.get("precision") == "auto":  # saved resolved: a resume on another machine keeps this run's numerics
+            cfg.algo.precision = self.precision
+        scaler = grad_scaler(self.precision, device)
+        note = collector_for_device(cfg, device)
+        self.notes = [note] if note else []  # printed when the run starts
+        _ensure_updater_config(cfg)
+
+        # the reward slot: static rewards and frozen learned ones are env transforms; phase 1 builds a learner
+        self.reward = reward = reward_setup(cfg.reward, phase)
+        reads = list(cfg.reward.get("in_keys") or getattr(reward.frozen, "reward_in_keys", None) or ())
+        if TASK_OBSERVATION_KEY in reads and not cfg.env.get("task_observation"):
+            with open_dict(cfg):  # the reward reads the task state: the env writes it (saved in config.yaml)
+                cfg.env.task_observation = True
+        self.family = family = family_from_config(cfg.env)
+        self.env, self.eval_env, self._env_kwargs = make_envs(cfg, family, reward, device)
+
+        self.num_demos, demos, self.learner = 0, None, None
+        if phase == "learn" and reward.name in LEARNED:
+            # a resumed DrS run has its demonstrations in its stage-buffer snapshot (the file is read again only
+            # for demos.sac_share); the classifiers keep theirs apart from their data and read the file again
+            asked = requested_sac_share((cfg.get("demos") or {}).get("sac_share"))
+            demos = self._demonstrations(cfg, family) if (not resume or reward.name != "drs" or asked != 0) else None
+            filed = demos if self._resolve_stage_buffers(cfg, demos, asked) else None
+            self.learner = make_reward_learner(
+                cfg,
+                family,
+                self.env,
+                device,
+                self.precision,
+                functools.partial(backward_and_step, scaler),
+                demos=None if (resume and reward.name == "drs") else filed,
+            )
+            reward.learned = self.learner.reward
+        self.learned = reward.learned
+
+        # the algorithm: an off-policy one samples a replay buffer whose transform recomputes the learned reward
+        # (Algorithm 1, line 18), with the demonstrations' share of each batch (demos.sac_share)
+        demo_replay, demo_batch = self._demo_mix(cfg, demos if self.learner is not None else None)
+        replay = None
+        if cfg.algo.get("replay_buffer") is not None:
+            replay = make_replay_buffer(cfg, self.learned, device, int(cfg.algo.batch_size) - demo_batch)
+            if self.learner is not None:
+                self.learner.attach(replay)  # GAIL draws the agent's transitions from it
+        self.updater = instantiate(cfg.algo.updater)(
+            self.env,
+            replay,
+            device=device,
+            precision=self.precision,
+            grad_scaler=scaler,
+            demo_replay=demo_replay,
+            demo_batch=demo_batch,
+            reward=self.learned,
+        )
+        self.actor = self.updater.eval_policy
+        if cfg.get("init_from") and not resume:  # Sec. 5.4.2: fine-tune a phase-1 agent instead of a fresh one
+            self._init_from(cfg.init_from)
+
+        self.checkpointer = Checkpointer(self.run_dir, self.updater.buffers, self.learner)
+        self.progress = Progress()
+        self.episodes = EpisodeWindow(int(cfg.logger.episode_window), family.num_stages, self.episode_reward)
+        if resume:
+            self.load_training_state()
+            self.progress.resumed_from = self.frames
+            self.env.set_seed(int(cfg.seed) + 1 + self.frames)  # fresh episodes, not the first run's
+        self.logger = RunLogger(
+            self.run_dir,
+            tensorboard=cfg.logger.tensorboard,
+            csv_files=cfg.logger.csv,
+            resume_step=self.progress.resumed_from,
+            wandb=bool(cfg.logger.get("wandb", False)),
+            wandb_project=cfg.logger.get("wandb_project", "drs-torchrl"),
+            wandb_mode=cfg.logger.get("wandb_mode", "offline"),
+        )
+        # written last: a run that fails to start (or to resume) leaves the directory as it was
+        save_config(cfg, self.run_dir / "config.yaml")
+
+    @property
+    def frames(self) -> int:
+        return self.progress.frames
+
+    # ------------------------------------------------------------------ rewards
+    def episode_reward(self, episode) -> torch.Tensor:
+        """Reward of an episode's transitions under the reward being trained on (for logging)."""
+        if self.learned is None:
+            return episode.get(("next", "reward"))
+        episode = episode.to(self.device)
+        # DrS reads next states; a classifier reward may read (s, a) and takes whole transitions
+        return self.learned.reward(episode if isinstance(self.learned, ClassifierReward) else episode.get("next"))
+
+    # ------------------------------------------------------------------ demonstrations
+    def _demonstrations(self, cfg, family) -> list | None:
+        """The episodes of ``demos.path`` (``demos.num`` of them), checked against this task, or None."""
+        demos = cfg.get("demos") or {}
+        if not demos.get("path"):
+            return None
+        episodes, meta = load_demos(demos["path"])
+        if list(meta["stage_keys"]) != list(family.stage_keys) and set(family.stage_keys) <= set(meta["stage_keys"]):
+            # a stage ablation (env.stages): the demonstrations keep every indicator, so relabel them
+            episodes, meta = restage_demos(episodes, meta, family.stage_keys)
+        mismatched = variant_mismatches(meta, cfg.env.get("variant_overrides"))
+        if mismatched:
+            overrides = " ".join(
+                f"--override {k}={v}" for k, v in OmegaConf.to_container(cfg.env.variant_overrides).items()
+            )
+            tqdm.write(
+                f"drs-{self.phase}: warning: {demos['path']} were recorded without this run's env.variant_overrides "
+                f"{'; '.join(mismatched)}: their stages follow the recording's task. To match, record them with "
+                f"drs-demos --family {family.name} {overrides} --out NEW.demos"
+            )
+        in_keys = list(cfg.reward.get("in_keys") or family.reward_in_keys)
+        spec = self.env.observation_spec
+        check_demos(
+            meta, family, {k: int(spec[k].shape[-1]) for k in in_keys if k in spec.keys(True, True)}, demos["path"]
+        )
+        n = len(episodes) if demos.get("num") is None else int(demos["num"])
+        if n > len(episodes):
+            raise ConfigError(f"demos.num={n} but {demos['path']} holds only {len(episodes)} demonstrations")
+        if cfg.reward.get("use_action"):  # (s, a) rewards need the agent's own actions
+            acts = meta.get("actions")
+            mode = self._control_mode(cfg)
+            if acts is None:
+                raise ConfigError(
+                    f"reward={cfg.reward.name} reads (s, a), but {demos['path']} holds states only (planner "
+                    "demonstrations, or recorded before actions were kept); record demonstrations with "
+                    "drs-demos --from-policy RUN_DIR, or use reward.use_action=false"
+                )
+            if acts["control_mode"] != mode or int(acts["size"]) != int(self.env.action_spec.shape[-1]):
+                raise ConfigError(
+                    f"the actions in {demos['path']} are {acts['size']}-dimensional {acts['control_mode']} "
+                    f"commands; this run acts with {int(self.env.action_spec.shape[-1])}-dimensional {mode}"
+                )
+        self.num_demos = n
+        return episodes[:n]
+
+    def _control_mode(self, cfg) -> str:
+        """The controller this run's agent acts with (env.control_mode, else its split's, else the family's)."""
+        return (
+            cfg.env.control_mode or self.family.env_args(cfg.env.split).get("control_mode") or self.family.control_mode
+        )
+
+    def _resolve_stage_buffers(self, cfg, demos, asked) -> bool:
+        """``demos.stage_buffers``: true / false as asked; ``auto`` (the default recipe, docs/recipe.md) keeps
+        DrS's demonstrations out of the stage buffers when they can feed the SAC batch (they carry the agent's
+        actions and ``demos.sac_share`` is not 0), so the positives are the agent's own successes; saved resolved."""
+        want = (cfg.get("demos") or {}).get("stage_buffers", True)
+        if want != "auto":
+            return bool(want)
+        action_dim = int(self.env.action_spec.shape[-1])
+        sac_only = bool(demos) and self.reward.name == "drs" and asked != 0 and carries_actions(demos, action_dim)
+        if demos:
+            tqdm.write(
+                f"drs-{self.phase}: demos.stage_buffers=auto -> {str(not sac_only).lower()}: "
+                + (
+                    "the demonstrations feed the SAC batch only; the discriminators' positives are the agent's own successes"
+                    if sac_only
+                    else "the demonstrations go into the top stage buffer (the paper's Algorithm 1, line 3)"
+                )
+            )
+        with open_dict(cfg):
+            cfg.demos.stage_buffers = not sac_only
+        return not sac_only
+
+    def _demo_mix(self, cfg, demos):
+        """RLPD-style share of demonstrations in every SAC batch (``demos.sac_share``, :mod:`drs_torchrl.data.demo_mix`).
+        ``auto`` (the default) takes :data:`AUTO_SAC_SHARE` where the demonstrations allow it and says so, 0 where
+        they do not and says why. Returns ``(buffer, transitions per batch)`` or ``(None, 0)``."""
+        asked = requested_sac_share((cfg.get("demos") or {}).get("sac_share"))
+        if asked == 0:
+            return self._check_demos_used(cfg, demos, 0)
+        if asked is None and not demos:  # auto, and no demonstrations (or no reward learned here): nothing to share
+            cfg.demos.sac_share = 0.0
+            return None, 0
+        root_keys = list(cfg.algo.policy_in_keys)
+        problems = share_problems(
+            demos,
+            cfg.demos.path,
+            int(self.env.action_spec.shape[-1]),
+            self._control_mode(cfg),
+            root_keys,
+            self.learner is not None,
+        )
+        if asked is None:
+            share = 0.0 if problems else AUTO_SAC_SHARE
+            tqdm.write(
+                f"drs-{self.phase}: demos.sac_share=auto -> {share:g}: "
+                + (
+                    problems[0]
+                    if problems
+                    else f"a share of every SAC batch from the {len(demos)} demonstrations' transitions "
+                    "(beyond the paper: demos.sac_share=0 is its phase 1; results/demos_compare/pick_cube/)"
+                )
+            )
+            cfg.demos.sac_share = share  # saved resolved: a resume keeps this run's choice
+            if share == 0:
+                return self._check_demos_used(cfg, demos, 0)
+        elif problems:
+            raise ConfigError(problems[0])
+        else:
+            share = asked
+        buffer = demo_replay_buffer(demos, root_keys, self.learned, self.device)
+        return buffer, max(1, round(share * int(cfg.algo.batch_size)))
+
+    def _check_demos_used(self, cfg, demos, demo_batch):
+        if demos and (cfg.get("demos") or {}).get("stage_buffers", True) is False:
+            raise ConfigError(
+                f"demos.stage_buffers=false keeps the demonstrations out of the stage buffers, and demos.sac_share "
+                f"is {cfg.demos.sac_share}: they would not be used at all; set demos.sac_share=0.25 "
+                "(demonstrations with the agent's actions: drs-demos' default) or demos.stage_buffers=true"
+            )
+        return None, demo_batch
+
+    def _init_from(self, run_dir) -> None:
+        """Start from another run's ``checkpoints/policy.pt`` (fine-tuning, Sec. 5.4.2); optimisers and replay
+        start fresh."""
+        file, ck = read_policy_checkpoint(run_dir)
+        problems = []
+        if ck.get("family") != self.family.name:
+            problems.append(f"it is a policy for family {ck.get('family')!r}, this run is {self.family.name!r}")
+        if not problems and hasattr(self.updater, "init_from"):
+            problems = self.updater.init_from(ck)
+        elif not hasattr(self.updater, "init_from"):
+            problems.append(f"algo updater {self.updater.name} cannot start from a policy checkpoint")
+        if problems:
+            raise ConfigError(f"init_from={run_dir}: cannot fine-tune from {file}: " + "; ".join(problems))
+        self.init_from = str(file)
+
+    # --------------------------------------------------------------- evaluation
+    def evaluate(self) -> dict[str, float]:
+        """``eval.episodes`` deterministic episodes on the evaluation split (the same ones each time with
+        ``eval.episode_seed``): success rate, per-stage reach rates, length, return."""
+        n = int(self.cfg.eval.episodes)
+        if n == 0:
+            return {}
+        episodes, first_seed = [], self.cfg.eval.get("episode_seed")
+        with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
+            for j in range(n):
+                if first_seed is not None:  # a seeded reset: the same n episodes at every evaluation, in every run
+                    self.eval_env.set_seed(int(first_seed) + j, static_seed=True)
+                ep = self.eval_env.rollout(10_000, self.updater.eval_policy, break_when_any_done=True)
+                while ep.batch_dims > 1:  # a GPU env with num_envs=1 has batch (1, T)
+                    ep = ep[0]
+                episodes.append(episode_summary(ep, self.episode_reward))
+        return aggregate_episodes(episodes, self.family.num_stages)
+
+    # -------------------------------------------------------------- checkpoints
+    def _policy_file(self) -> dict[str, Any]:
+        return {
+            "format": POLICY_FORMAT,
+            "version": 1,
+            "frames": self.frames,
+            "family": self.family.name,
+            "algo": self.updater.name,
+            **self.updater.policy_checkpoint(),
+        }
+
+    def save_checkpoints(self) -> dict[str, str]:
+        """The user-facing checkpoints: the learned reward (phase 1) and the policy."""
+        ck, policy = self.checkpointer.dir, self._policy_file()
+        reward = [self.learner.reward.state_dict()] if self.learner is not None else []
+        self.checkpointer.check_room([policy, *reward], self._state_payload())
+        paths = {}
+        if self.learner is not None:
+            paths["reward"] = str(self.learner.save_reward(ck / "reward.pt", frames=self.frames, phase=self.phase))
+        paths.update(self.checkpointer.save_files({"policy": policy}))
+        return paths
+
+    def save_training_state(self) -> Path:
+        """Everything needed to continue the run (:class:`~drs_torchrl.checkpoint.Checkpointer`)."""
+        return self.checkpointer.save_state(self._state_payload())
+
+    def _save(self) -> dict[str, str]:
+        paths = self.save_checkpoints()
+        self.save_training_state()
+        return paths
+
+    def _state_payload(self) -> dict:
+        """The training state apart from the buffers (``trainer.pt``)."""
+        u = self.updater.state_dict()
+        return {
+            "phase": self.phase,
+            "algo": self.updater.name,
+            "counters": {
+                "frames": self.frames,
+                "updates": u.pop("updates"),
+                "disc_updates": self.learner.updates if self.learner is not None else 0,
+                "owed_updates": u.pop("owed_updates"),
+                "last_eval_frames": self.progress.last_eval_frames,
+            },
+            **u,  # loss, optimizers (and whatever else the updater keeps)
+            "learner": self.learner.state_dict() if self.learner is not None else None,
+            "recent_episodes": list(self.episodes.recent),
+            "rng": rng_state(),
+        }
+
+    def load_training_state(self) -> None:
+        payload, state_dir = self.checkpointer.read_state(self.phase)
+        algo = payload.get("algo", "sac")  # states written before algo.updater existed are SAC's
+        if algo != self.updater.name:
+            raise TrainingStateError(
+                f"{self.run_dir}'s training state is {algo}'s, this run's algo trains {self.updater.name}"
+            )
+        c = payload["counters"]
+        self.progress.frames, self.progress.last_eval_frames = int(c["frames"]), int(c["last_eval_frames"])
+        known = ("format", "version", "phase", "algo", "counters", "learner", "recent_episodes", "rng")
+        state = {k: v for k, v in payload.items() if k not in known}
+        self.updater.load_state_dict({**state, "updates": c["updates"], "owed_updates": c["owed_updates"]})
+        learner_state = payload.get("learner")
+        if self.learner is not None and learner_state is None:
+            # written before the reward learners existed: a DrS run's parts at the top level
+            learner_state = {
+                "reward": payload["reward"],
+                "disc_loss": payload["disc_loss"],
+                "updates": int(c["disc_updates"]),
+                "optimizers": {"discriminator": payload["optimizers"]["discriminator"]},
+                "stage_buffer_episodes": payload["stage_buffer_episodes"],
+            }
+        self.checkpointer.restore_buffers(state_dir, learner_state)
+        self.episodes.recent.extend(tuple(e) for e in payload["recent_episodes"])
+        set_rng_state(payload["rng"])
+
+    # --------------------------------------------------------------------- run
+    @property
+    def collects_in_background(self) -> bool:
+        """True when the configured collector steps the env in its own process (``collects_in_background``)."""
+        return collects_in_background(self.cfg)
+
+    def _collector_env(self):
+        """The env for the collector: the run's own env for an in-process collector, else a picklable
+        constructor of the same env (same transforms: stage labelling, a frozen reward in phase 2), seeded like
+        the run's (``seed``; ``seed + 1 + frames`` on resume), which the collector's worker process calls."""
+        if not self.collects_in_background:
+            return self.env
+        seed = int(self.cfg.seed) + (1 + self.frames if self.progress.resumed_from is not None else 0)
+        transforms = (self.reward.frozen.clone(),) if self.reward.frozen is not None else ()
+
+        def factory(worker: int):
+            make = functools.partial(
+                make_family_env,
+                self.family,
+                self.cfg.env.split,
+                seed=seed + 7919 * worker,
+                transforms=transforms,
+                **self._env_kwargs,
+            )
+            return functools.partial(worker_env, make)
+
+        if issubclass(get_class(self.cfg.algo.collector._target_), AsyncCollector):
+            return factory(0)
+        # MultiAsyncCollector / MultiSyncCollector: one differently seeded env per worker process
+        return [factory(w) for w in range(int(self.cfg.algo.collector.get("num_workers") or 1))]
+
+    def make_collector(self, frames: int):
+        """The configured TorchRL collector for the next ``frames`` env steps, acting with the updater's policy
+        (random actions until ``algo.learning_starts``)."""
+        return make_collector(self.cfg, self._collector_env(), self.updater.policy, frames, self.frames, self.device)
+
+    def run(self) -> dict[str, Any]:
+        """Algorithm 1 from where the run stands to ``total_frames`` env steps; writes and returns the summary."""
+        cfg = self.cfg
+        summary: dict[str, Any] = {
+            "phase": self.phase,
+            "run_dir": str(self.run_dir),
+            "resumed_from": self.progress.resumed_from,
+            "algo": self.updater.name,
+            "precision": self.precision,
+            "init_from": cfg.get("init_from"),
+            "code": code_version(),
+        }
+        tqdm.write(f"drs-{self.phase}: {describe_precision(self.precision, self.device)}")
+        for note in self.notes:
+            tqdm.write(f"drs-{self.phase}: {note}")
+        try:
+            if self.learner is not None and self.frames == 0 and self.progress.resumed_from is None:
+                self.learner.prepare(self.env)  # e.g. ORIL's offline classifier, before the first env step
+            remaining = int(cfg.total_frames) - self.frames
+            if remaining > 0:
+                self.collector = self.make_collector(remaining)
+                if self.collects_in_background and not self.env.is_closed:
+                    self.env.close()  # its specs were all the run needed; the worker has its own simulator
+            background = self.collector is not None and self.collects_in_background
+            summary.update(
+                run_algorithm1(
+                    self.collector if self.collector is not None else (),
+                    self.updater,
+                    learner=self.learner,
+                    episodes=self.episodes,
+                    logger=self.logger,
+                    evaluate=self.evaluate,
+                    save=self._save,
+                    schedule=Schedule(
+                        total_frames=int(cfg.total_frames),
+                        log_interval=int(cfg.logger.interval),
+                        eval_interval=int(cfg.eval.interval),
+                        checkpoint_interval=int(cfg.checkpoint_interval),
+                        stop_at_success=cfg.get("stop_at_success"),
+                    ),
+                    progress=self.progress,
+                    sync_policy=self.collector.update_policy_weights_ if background else None,
+                    name=f"drs-{self.phase}",
+                    progress_bar=bool(cfg.logger.progress_bar),
+                    where=str(self.checkpointer.dir),
+                )
+            )
+            atomic_write_text(self.run_dir / "summary.json", json.dumps(summary, indent=2))
+        finally:
+            self.close()  # the collector's worker must not outlive the run (NaN, a full disk, ...)
+        return summary
+
+    def close(self) -> None:
+        if self.logger is not None:
+            self.logger.close()
+            self.logger = None
+        if self.collector is not None:
+            try:
+                self.collector.shutdown()
+            except Exception:
+                pass
+            self.collector = None  # freed now, not at interpreter exit
+        for env in (self.env, self.eval_env):
+            if env is not None and not env.is_closed:
+                env.close()
+
+
+def train(cfg: DictConfig, phase: str, run_dir: str | Path, *, resume: bool = False) -> dict[str, Any]:
+    """Run (or, with ``resume=True``, continue) one phase with the Hydra config ``cfg``."""
+    return Run(cfg, phase, run_dir, resume=resume).run()
