@@ -32,10 +32,10 @@ class EvalError(UserError, ValueError):
 
 def _run_reward(run_dir: Path, cfg):
     """The reward transform the run trained with, for the episodes' return (None: the env's reward)."""
-    from drs_torchrl.rewards import LEARNED
+    from drs_torchrl.rewards import is_learned
     from drs_torchrl.transforms.reward import load_reward
 
-    if cfg.reward.name not in LEARNED or cfg.phase != "learn":
+    if not is_learned(cfg.reward) or cfg.phase != "learn":
         return None  # a reused learned reward is the setup's frozen transform
     path = run_dir / "checkpoints" / "reward.pt"
     if not path.is_file() and (run_dir / "reward.pt").is_file():

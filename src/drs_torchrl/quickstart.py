@@ -36,7 +36,7 @@ from omegaconf import DictConfig
 
 from drs_torchrl.console import UserError, console_script
 from drs_torchrl.rundir import LOCK_NAME, lock_run_dir
-from drs_torchrl.trainers.maze import _conf_dir
+from drs_torchrl.config_dir import conf_dir as _conf_dir
 
 SUCCESS_BAR = 0.9  # "solved": greedy success at or above this
 LABELS = {

@@ -5,30 +5,59 @@ transform writes the semi-sparse reward, (c) a transform in the env (static rewa
 per step) and/or (d) a transform on replay-buffer samples (rewards that change while training, so
 they are recomputed from the current modules when SAC samples; Sec. 4, Algorithm 1 line 18).
 
-Learned rewards (phase 1 learns them with a :mod:`drs_torchrl.learners` learner, phase 2 reuses the
-checkpoint): ``drs``, and the baselines ``vice_raq``, ``oril``, ``gail`` and ``gail_stages`` (GAIL's
-reward plus the semi-sparse one in reuse, Appendix F.2).
+**The registry is ``conf/reward/``**: a reward exists when ``conf/reward/<name>.yaml`` does, and that file names
+what builds it by ``_target_``: ``slot`` (one of the functions below: what the run's reward slot holds in either
+phase) and, for a learned reward, ``learner`` (its phase-1 :mod:`drs_torchrl.learners` learner, built by a
+``*_learner`` function below) and ``reuses`` (the method of the ``reward.pt`` its phase 2 loads, when it is not its
+own name). No module lists reward names. Adding a learned reward: a learner class, its builder and one YAML.
 
-Static baselines of Sec. 5.2: ``sparse`` (success), ``semi_sparse`` (Eq. 2), ``dense`` (ManiSkill's
-human-engineered normalized dense reward, shifted by -1 so that its maximum is 0 and ending an episode
-on success beats hovering short of it, as for every other reward here; for a Gymnasium family such as
-HalfCheetah, Appendix G, the env's own reward, unshifted).
+Learned rewards: ``drs``, and the baselines ``vice_raq``, ``oril``, ``gail`` and ``gail_stages`` (GAIL's
+reward plus the semi-sparse one in reuse, Appendix F.2). Static baselines of Sec. 5.2: ``sparse`` (success),
+``semi_sparse`` (Eq. 2), ``dense`` (ManiSkill's human-engineered normalized dense reward, shifted by -1 so that its
+maximum is 0 and ending an episode on success beats hovering short of it, as for every other reward here; for a
+Gymnasium family such as HalfCheetah, Appendix G, the env's own reward, unshifted).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
 from torchrl.envs.transforms import Transform
 
+from drs_torchrl.config_dir import conf_dir
 from drs_torchrl.tasks import TaskFamily
 from drs_torchrl.transforms.classifier_reward import ClassifierReward
 from drs_torchrl.transforms.reward import DrSReward, RewardCheckpointError, load_reward
 
-LEARNED = ("drs", "vice_raq", "oril", "gail", "gail_stages")
-REWARDS = (*LEARNED, "sparse", "semi_sparse", "dense")
-# the learner whose checkpoint each learned reward reuses
-_CHECKPOINT_METHOD = {"drs": "drs", "vice_raq": "vice_raq", "oril": "oril", "gail": "gail", "gail_stages": "gail"}
+
+def available_rewards() -> list[str]:
+    """Every reward of the registry (the files of ``conf/reward/``)."""
+    return sorted(p.stem for p in (Path(conf_dir()) / "reward").glob("*.yaml"))
+
+
+def reward_entry(cfg) -> DictConfig:
+    """The registry entry of the reward ``cfg`` (a ``reward`` config group, or just ``{name: ...}``): the group
+    itself where it carries ``slot`` (a composed config), else ``conf/reward/<name>.yaml`` (a config saved before
+    the registry, or the maze's inline reward)."""
+    if cfg.get("slot") is not None:
+        return cfg
+    path = Path(conf_dir()) / "reward" / f"{cfg.name}.yaml"
+    if not path.is_file():
+        raise ValueError(f"unknown reward {cfg.name!r}; choose one of {available_rewards()} (conf/reward/)")
+    return OmegaConf.load(path)
+
+
+def is_learned(cfg) -> bool:
+    """A reward that phase 1 learns (its entry names a ``learner``)."""
+    return reward_entry(cfg).get("learner") is not None
+
+
+def reused_method(cfg) -> str:
+    """The learner whose checkpoint a learned reward reuses (``reuses``, else its own name)."""
+    return str(reward_entry(cfg).get("reuses") or cfg.name)
 
 
 @dataclass
@@ -43,44 +72,62 @@ class RewardSetup:
 
 
 def reward_setup(cfg, phase: str) -> RewardSetup:
-    """Reward of a run from the ``reward`` config group (``cfg.reward``)."""
-    name = cfg.name
-    if name not in REWARDS:
-        raise ValueError(f"unknown reward {name!r}; choose one of {REWARDS}")
-    if name == "sparse":
-        return RewardSetup(name, env_reward_mode="sparse")
-    if name == "semi_sparse":
-        off = cfg.get("offset")
-        return RewardSetup(name, semi_sparse=True, semi_sparse_offset=None if off is None else float(off))
-    if name == "dense":
-        off = cfg.get("offset")
-        return RewardSetup(
-            name, env_reward_mode="normalized_dense", env_reward_offset=None if off is None else float(off)
-        )
-    # a learned reward: phase 1 learns it (Trainer builds the learner), phase 2 loads it frozen
+    """The reward slot of a run from the ``reward`` config group (``cfg.reward``): its entry's ``slot`` builder."""
+    return instantiate(reward_entry(cfg).slot)(cfg, phase)
+
+
+def env_reward(cfg, phase: str, mode: str = "sparse") -> RewardSetup:
+    """``sparse`` / ``dense``: the env's own reward in ManiSkill's reward ``mode``, shifted by ``cfg.offset``
+    (dense; None: the family's default, :func:`dense_offset`)."""
+    off = cfg.get("offset")
+    return RewardSetup(cfg.name, env_reward_mode=mode, env_reward_offset=None if off is None else float(off))
+
+
+def semi_sparse_reward(cfg, phase: str) -> RewardSetup:
+    """``semi_sparse`` (Eq. 2): the stage index written by the stage transform, shifted by ``cfg.offset`` (None: -N)."""
+    off = cfg.get("offset")
+    return RewardSetup(cfg.name, semi_sparse=True, semi_sparse_offset=None if off is None else float(off))
+
+
+def learned_reward(cfg, phase: str) -> RewardSetup:
+    """A learned reward: phase 1 learns it (the run builds its ``learner``), phase 2 loads ``cfg.checkpoint``
+    frozen, checked to come from the learner it reuses."""
+    name, method = cfg.name, reused_method(cfg)
     if phase == "learn":
         if cfg.get("checkpoint"):
             raise ValueError(f"reward.checkpoint is for drs-reuse; drs-learn learns the {name} reward from scratch")
         return RewardSetup(name)
     if not cfg.get("checkpoint"):
         raise ValueError(
-            f"drs-reuse with reward={name} needs reward.checkpoint=PATH (a reward.pt written by "
-            f"drs-learn reward={_CHECKPOINT_METHOD[name]})"
+            f"drs-reuse with reward={name} needs reward.checkpoint=PATH (a reward.pt written by drs-learn reward={method})"
         )
     frozen = load_reward(cfg.checkpoint)
-    method = "drs" if isinstance(frozen, DrSReward) else frozen.method
-    if method != _CHECKPOINT_METHOD[name]:
+    got = "drs" if isinstance(frozen, DrSReward) else frozen.method
+    if got != method:
         raise RewardCheckpointError(
-            f"reward={name} reuses a reward learned by drs-learn reward={_CHECKPOINT_METHOD[name]}, "
-            f"but {cfg.checkpoint} was learned by reward={method}; use reward={method}"
+            f"reward={name} reuses a reward learned by drs-learn reward={method}, "
+            f"but {cfg.checkpoint} was learned by reward={got}; use reward={got}"
         )
-    if name == "gail_stages":  # Appendix F.2: GAIL's reward combined linearly with the semi-sparse one
-        frozen = ClassifierReward.from_checkpoint(
-            cfg.checkpoint, stage_weight=float(cfg.stage_weight), classifier_weight=float(cfg.classifier_weight)
+    return RewardSetup(name, frozen=_frozen(frozen))
+
+
+def gail_stages_reward(cfg, phase: str) -> RewardSetup:
+    """Appendix F.2, GAIL with stage indicators: phase 1 learns GAIL; phase 2 combines a GAIL checkpoint linearly
+    with the semi-sparse reward, ``classifier_weight * log D + stage_weight * (k - N)``."""
+    setup = learned_reward(cfg, phase)
+    if setup.frozen is not None:
+        setup.frozen = _frozen(
+            ClassifierReward.from_checkpoint(
+                cfg.checkpoint, stage_weight=float(cfg.stage_weight), classifier_weight=float(cfg.classifier_weight)
+            )
         )
-    frozen.requires_grad_(False)
-    frozen.eval()
-    return RewardSetup(name, frozen=frozen)
+    return setup
+
+
+def _frozen(reward: Transform) -> Transform:
+    reward.requires_grad_(False)
+    reward.eval()
+    return reward
 
 
 def dense_offset(setup: RewardSetup, family: TaskFamily) -> float:
@@ -128,50 +175,75 @@ def new_classifier_reward(cfg, family: TaskFamily, observation_spec, action_spec
         offset=float(cfg.get("offset") or 0.0),
         hidden=list(cfg.hidden),
         activation=str(cfg.activation),
-        method=_CHECKPOINT_METHOD[cfg.name],
+        method=reused_method(cfg),
         metadata=metadata,
     )
 
 
 def new_reward_learner(cfg, family: TaskFamily, env, metadata: dict, *, device, autocast, step_fn, demos=None):
-    """The phase-1 learner of ``reward=<name>`` (``cfg`` is the ``reward`` config group)."""
-    from drs_torchrl.learners import (
-        DemoDiscriminatorLearner,
-        DrSLearner,
-        OfflineClassifierLearner,
-        SuccessClassifierLearner,
+    """The phase-1 learner of ``reward=<name>`` (``cfg`` is the ``reward`` config group): its entry's ``learner``."""
+    return instantiate(reward_entry(cfg).learner)(
+        cfg, family, env, metadata, device=device, autocast=autocast, step_fn=step_fn, demos=demos
     )
 
+
+def _common(cfg, device, autocast, step_fn) -> dict:
     d = cfg.disc
-    common = dict(lr=float(d.lr), fused=bool(d.get("fused", False)), device=device, autocast=autocast, step_fn=step_fn)
-    if cfg.name == "drs":
-        reward = new_drs_reward(cfg, family, env.observation_spec, metadata).to(device)
-        return DrSLearner(
-            reward,
-            capacity=int(cfg.stage_buffer_size),
-            batch_size=int(d.batch_size),
-            scratch_dir=cfg.get("stage_buffer_scratch_dir"),
-            updates_per_rl_update=float(d.updates_per_sac_update),
-            early_stop_threshold=d.early_stop_threshold,
-            window=int(d.window),
-            latch=bool(d.get("latch", True)),
-            demos=demos,
-            **common,
-        )
+    return dict(lr=float(d.lr), fused=bool(d.get("fused", False)), device=device, autocast=autocast, step_fn=step_fn)
+
+
+def drs_learner(cfg, family: TaskFamily, env, metadata: dict, *, device, autocast, step_fn, demos=None):
+    """DrS (Algorithm 1): stage buffers and one discriminator per stage, training a fresh :class:`DrSReward`."""
+    from drs_torchrl.learners import DrSLearner
+
+    d = cfg.disc
+    return DrSLearner(
+        new_drs_reward(cfg, family, env.observation_spec, metadata).to(device),
+        capacity=int(cfg.stage_buffer_size),
+        batch_size=int(d.batch_size),
+        scratch_dir=cfg.get("stage_buffer_scratch_dir"),
+        updates_per_rl_update=float(d.updates_per_sac_update),
+        early_stop_threshold=d.early_stop_threshold,
+        window=int(d.window),
+        latch=bool(d.get("latch", True)),
+        demos=demos,
+        **_common(cfg, device, autocast, step_fn),
+    )
+
+
+def _classifier(cfg, family, env, metadata, device, autocast, step_fn) -> tuple[ClassifierReward, dict]:
     reward = new_classifier_reward(cfg, family, env.observation_spec, env.action_spec, metadata).to(device)
-    common.update(batch_size=int(d.batch_size), updates_per_rl_update=float(d.updates_per_sac_update))
-    if cfg.name == "vice_raq":
-        return SuccessClassifierLearner(
-            reward, success_key=family.stage_keys[-1], capacity=int(cfg.buffer_size), **common
-        )
-    if cfg.name == "oril":
-        return OfflineClassifierLearner(
-            reward,
-            demos=demos,
-            capacity=int(cfg.buffer_size),
-            random_episodes=int(cfg.random_episodes),
-            offline_updates=int(cfg.offline_updates),
-            **common,
-        )
-    # gail, gail_stages (phase 1 of both is GAIL)
+    common = _common(cfg, device, autocast, step_fn)
+    common.update(batch_size=int(cfg.disc.batch_size), updates_per_rl_update=float(cfg.disc.updates_per_sac_update))
+    return reward, common
+
+
+def vice_raq_learner(cfg, family: TaskFamily, env, metadata: dict, *, device, autocast, step_fn, demos=None):
+    """VICE-RAQ with an oracle (Sec. 5.2): success states vs every other visited state, online."""
+    from drs_torchrl.learners import SuccessClassifierLearner
+
+    reward, common = _classifier(cfg, family, env, metadata, device, autocast, step_fn)
+    return SuccessClassifierLearner(reward, success_key=family.stage_keys[-1], capacity=int(cfg.buffer_size), **common)
+
+
+def oril_learner(cfg, family: TaskFamily, env, metadata: dict, *, device, autocast, step_fn, demos=None):
+    """ORIL (Sec. 5.2): demonstration states vs random-policy states, trained offline before RL."""
+    from drs_torchrl.learners import OfflineClassifierLearner
+
+    reward, common = _classifier(cfg, family, env, metadata, device, autocast, step_fn)
+    return OfflineClassifierLearner(
+        reward,
+        demos=demos,
+        capacity=int(cfg.buffer_size),
+        random_episodes=int(cfg.random_episodes),
+        offline_updates=int(cfg.offline_updates),
+        **common,
+    )
+
+
+def gail_learner(cfg, family: TaskFamily, env, metadata: dict, *, device, autocast, step_fn, demos=None):
+    """GAIL (Appendix F.2): demonstrations vs the agent's transitions, TorchRL's ``GAILLoss``."""
+    from drs_torchrl.learners import DemoDiscriminatorLearner
+
+    reward, common = _classifier(cfg, family, env, metadata, device, autocast, step_fn)
     return DemoDiscriminatorLearner(reward, demos=demos, grad_penalty=bool(cfg.get("grad_penalty", False)), **common)

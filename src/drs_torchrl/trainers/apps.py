@@ -24,6 +24,7 @@ import yaml
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
+from drs_torchrl.config_dir import conf_dir  # noqa: F401 (the CLI's config path; re-exported)
 from drs_torchrl.console import UserError, console_script, user_error_message
 from drs_torchrl.rundir import (
     DiskFullError,
@@ -122,17 +123,6 @@ def resume_config(run_dir: Path, phase: str, overrides: list[str], composed: Dic
         OmegaConf.update(saved, key, parsed, merge=True)
     saved.resume = str(run_dir)
     return saved
-
-
-def conf_dir() -> str:
-    env = os.environ.get("DRS_CONF_DIR")
-    if env:
-        return str(Path(env).resolve())
-    here = Path(__file__).resolve()
-    for parent in here.parents:
-        if (parent / "conf" / "learn.yaml").is_file():
-            return str(parent / "conf")
-    raise FileNotFoundError("cannot find drs-torchrl's conf/ directory; set DRS_CONF_DIR=/path/to/conf")
 
 
 class ExistingRunError(UserError, ValueError):

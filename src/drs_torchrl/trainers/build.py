@@ -22,6 +22,7 @@ from torchrl.collectors import AsyncCollector
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm.auto import tqdm
 
+from drs_torchrl.config_dir import conf_dir
 from drs_torchrl.checkpoint import (
     Checkpointer,
     TrainingStateError,
@@ -44,7 +45,7 @@ from drs_torchrl.loop import EpisodeWindow, Progress, Schedule, aggregate_episod
 from drs_torchrl.models import POLICY_FORMAT, read_policy_checkpoint
 from drs_torchrl.precision import describe_precision, grad_scaler, resolve_precision
 from drs_torchrl.provenance import code_version
-from drs_torchrl.rewards import LEARNED, reward_setup
+from drs_torchrl.rewards import is_learned, reward_setup
 from drs_torchrl.run_logger import RunLogger
 from drs_torchrl.signals import worker_env
 from drs_torchrl.tasks import TASK_OBSERVATION_KEY, family_from_config
@@ -73,8 +74,6 @@ def _ensure_updater_config(cfg: DictConfig) -> None:
     """A config saved before ``algo.updater`` existed (an older run being resumed) trains SAC, as it did."""
     if cfg.algo.get("updater") is not None:
         return
-    from drs_torchrl.trainers.apps import conf_dir
-
     node = OmegaConf.load(Path(conf_dir()) / "algo" / f"{_DEFAULT_ALGO}.yaml").updater
     with open_dict(cfg):
         cfg.algo.updater = node
@@ -129,7 +128,7 @@ class Run:
         self.env, self.eval_env, self._env_kwargs = make_envs(cfg, family, reward, device)
 
         self.num_demos, demos, self.learner = 0, None, None
-        if phase == "learn" and reward.name in LEARNED:
+        if phase == "learn" and is_learned(cfg.reward):
             # a resumed DrS run has its demonstrations in its stage-buffer snapshot (the file is read again only
             # for demos.sac_share); the classifiers keep theirs apart from their data and read the file again
             asked = requested_sac_share((cfg.get("demos") or {}).get("sac_share"))

@@ -85,19 +85,16 @@ from drs_torchrl.maze_analysis import (  # noqa: F401 (re-exported: the maze's a
     reward_diagnostics,
     reward_label,
 )
+from drs_torchrl.config_dir import conf_dir
 from drs_torchrl.console import console_script
 from drs_torchrl.run_logger import RunLogger
 from drs_torchrl.loop import EpisodeWindow, Progress, Schedule, run_algorithm1
+from drs_torchrl.rewards import available_rewards, reused_method, reward_entry
 from drs_torchrl.rundir import lock_run_dir
 from drs_torchrl.transforms import ClassifierReward, DrSReward, SemiSparseReward, StageIndicator, load_reward
 from drs_torchrl.updaters.dqn import DQNUpdater
 from drs_torchrl.updaters.ppo import make_ppo_updater
 
-# the paper's learned baselines (Sec. 5.2, Appendix F.2) on the same core: classifier -> (output, offset),
-# as in conf/reward/*.yaml of the SAC families (every step costs: log D <= 0, D - 1 <= 0)
-CLASSIFIERS = {"vice_raq": ("log_sigmoid", 0.0), "oril": ("sigmoid", -1.0), "gail": ("log_sigmoid", 0.0)}
-LEARNED = ("drs", *CLASSIFIERS)  # what phase=learn can learn
-REWARDS = ("drs", "sparse", "semi_sparse", "dense", *CLASSIFIERS, "gail_stages")
 REWARD_INPUTS = ("state_action", "next_state")  # R(s, a) as the appendix's tabular analysis, or R(s') as Sec. 4.3
 FAMILY = "three_room_maze"
 
@@ -271,27 +268,45 @@ def _convertible(src: str, dst: str) -> bool:
     return src == dst or src in ("onehot", "scalar") or dst == "patch"
 
 
+def _entry(cfg: DictConfig):
+    """The reward's registry entry (``conf/reward/<name>.yaml``), or None for a name it does not hold."""
+    return reward_entry(cfg.reward) if cfg.reward.name in available_rewards() else None
+
+
+def _is_classifier(entry) -> bool:
+    """A learned baseline whose reward is one classifier (its entry says what it separates, or reuses one)."""
+    return entry is not None and entry.get("learner") is not None and (entry.get("trains_on") or entry.get("reuses"))
+
+
 def validate(cfg: DictConfig) -> None:
+    entry, name = _entry(cfg), cfg.reward.name
+    learned = entry is not None and entry.get("learner") is not None
+    learnable = [n for n in available_rewards() if (e := reward_entry(OmegaConf.create({"name": n}))).get("learner")
+                 and not e.get("reuses")]  # fmt: skip
     checks = [
         (cfg.phase in ("learn", "reuse", "report"), f"phase must be learn, reuse or report, got {cfg.phase!r}"),
-        (cfg.reward.name in REWARDS, f"reward.name must be one of {REWARDS}, got {cfg.reward.name!r}"),
+        (entry is not None, f"reward.name must be one of {available_rewards()} (conf/reward/), got {name!r}"),
         (
-            cfg.phase != "learn" or cfg.reward.name in LEARNED,
-            f"phase=learn learns one of {LEARNED} (static baselines, and gail_stages, run with phase=reuse)",
+            cfg.phase != "learn" or entry is None or name in learnable,
+            f"phase=learn learns one of {learnable} (static baselines, and rewards that reuse another's checkpoint, "
+            "run with phase=reuse)",
         ),
         (cfg.phase != "learn" or not cfg.reward.checkpoint, "reward.checkpoint is for phase=reuse"),
         (
-            cfg.phase != "reuse" or cfg.reward.name not in (*LEARNED, "gail_stages") or bool(cfg.reward.checkpoint),
-            f"phase=reuse with reward.name={cfg.reward.name} needs reward.checkpoint=PATH (a reward.pt written by phase=learn"
-            f"{' reward.name=gail' if cfg.reward.name == 'gail_stages' else ''})",
+            cfg.phase != "reuse" or not learned or bool(cfg.reward.checkpoint),
+            f"phase=reuse with reward.name={name} needs reward.checkpoint=PATH (a reward.pt written by phase=learn"
+            f" reward.name={entry.get('reuses') or name if entry is not None else name})",
         ),
         (
-            cfg.reward.name not in (*CLASSIFIERS, "gail_stages") or cfg.reward.get("coords") in (None, cfg.coords),
+            not _is_classifier(entry) or cfg.reward.get("coords") in (None, cfg.coords),
             "the classifier baselines read the agent's own observation: leave reward.coords=null",
         ),
         (
-            cfg.phase != "learn" or cfg.reward.name not in ("oril", "gail") or cfg.demos > 0,
-            f"reward.name={cfg.reward.name} learns from demonstrations: set demos > 0",
+            cfg.phase != "learn"
+            or entry is None
+            or entry.get("trains_on") not in ("demos_vs_random", "demos_vs_agent")
+            or cfg.demos > 0,
+            f"reward.name={name} learns from demonstrations: set demos > 0",
         ),
         (cfg.map is None or cfg.map in GATES, f"map must be null or one of {sorted(GATES)}, got {cfg.map!r}"),
         (
@@ -371,7 +386,7 @@ def make_reward(cfg: DictConfig, map_name: str, learn: bool) -> tuple[DrSLearner
     the same reward-learning core as the SAC families), frozen from a checkpoint (phase 2), or none
     (a baseline written by the env)."""
     r = cfg.reward
-    if r.name in (*CLASSIFIERS, "gail_stages"):
+    if _is_classifier(_entry(cfg)):
         return make_classifier_reward(cfg, map_name, learn)
     if r.name != "drs":
         return None, None
@@ -441,19 +456,21 @@ def make_classifier_reward(cfg: DictConfig, map_name: str, learn: bool):
     :mod:`drs_torchrl.learners` (phase 1), or the frozen classifier (phase 2; ``gail_stages`` adds
     the stage term ``w_s * (k - 1)`` to a GAIL checkpoint, Appendix F.2)."""
     r, c = cfg.reward, cfg.reward.classifier
+    entry = reward_entry(r)
     if not learn:
         rew = load_reward(r.checkpoint)
-        want = "gail" if r.name == "gail_stages" else r.name
+        want = reused_method(r)
         if not isinstance(rew, ClassifierReward) or rew.metadata.get("family") != FAMILY or rew.method != want:
             raise MazeConfigError(
                 f"{r.checkpoint} is not a maze {want} reward (family {rew.metadata.get('family')!r}, "
                 f"method {getattr(rew, 'method', 'drs')!r}): reward.name must match the phase-1 run's"
             )
-        if r.name == "gail_stages":
+        if want != r.name:  # gail_stages: the stage term added to a GAIL checkpoint (Appendix F.2)
             rew.classifier_weight, rew.stage_weight = float(c.classifier_weight), float(c.stage_weight)
         return None, rew.requires_grad_(False)
-    use_action = (r.name == "gail") if c.use_action is None else bool(c.use_action)
-    output, offset = CLASSIFIERS[r.name]
+    # the SAC families' settings of the method (conf/reward/<name>.yaml): every step costs (log D <= 0, D - 1 <= 0)
+    use_action = bool(entry.get("use_action", False)) if c.use_action is None else bool(c.use_action)
+    output, offset, trains_on = str(entry.output), float(entry.offset), entry.trains_on
     rew = ClassifierReward(
         ["observation"],
         {"observation": OBS_DIMS[cfg.coords]},
@@ -478,9 +495,7 @@ def make_classifier_reward(cfg: DictConfig, map_name: str, learn: bool):
     )
     s_eps = demo_episodes(map_name, int(cfg.demos), int(cfg.seed), cfg.coords)  # observations of s ...
     n_eps = demo_episodes(map_name, int(cfg.demos), int(cfg.seed), cfg.coords, next_state=True)  # ... and of s'
-    if (
-        r.name == "vice_raq"
-    ):  # the oracle's success label for every visited state; the demos' goal states seed the positives
+    if trains_on == "success_states":  # the oracle's success label for every visited state; demos' goals seed them
         goals = (
             torch.stack([n.get(("next", "observation"))[-1] for n in n_eps])
             if n_eps
@@ -504,7 +519,7 @@ def make_classifier_reward(cfg: DictConfig, map_name: str, learn: bool):
         )
         for s, n in zip(s_eps, n_eps)
     ]
-    if r.name == "oril":  # demonstration states vs random-walk states, offline (prepare())
+    if trains_on == "demos_vs_random":  # demonstration states vs random-walk states, offline (prepare())
         return OfflineClassifierLearner(
             rew,
             demos=[d.select("observation") for d in demos],
@@ -807,20 +822,8 @@ def _finish(cfg, run_dir: Path, loop_summary: dict, record: _MazeRecord, map_nam
 
 
 # ----------------------------------------------------------------------------- CLI
-def _conf_dir() -> str:
-    env = os.environ.get("DRS_CONF_DIR")
-    if env:
-        return str(Path(env).resolve())
-    for parent in Path(__file__).resolve().parents:
-        if (parent / "conf" / "maze.yaml").is_file():
-            return str(parent / "conf")
-    raise FileNotFoundError(
-        "cannot find drs-torchrl's conf/ directory (conf/maze.yaml); set DRS_CONF_DIR=/path/to/conf"
-    )
-
-
 @console_script("drs-maze")  # DRS_LIBRARY_MESSAGES=1 shows TorchRL's storage notices again
-@hydra.main(config_path=_conf_dir(), config_name="maze", version_base=None)
+@hydra.main(config_path=conf_dir(), config_name="maze", version_base=None)
 def main(cfg: DictConfig) -> None:
     """``drs-maze phase=learn|reuse|report ...`` (see conf/maze.yaml)."""
     try:

@@ -10,7 +10,7 @@ from torchrl.collectors import MultiCollector
 
 from drs_torchrl.data.demo_mix import requested_sac_share
 from drs_torchrl.errors import ConfigError
-from drs_torchrl.rewards import LEARNED
+from drs_torchrl.rewards import is_learned
 
 __all__ = ["ConfigError", "validate_config", "collects_in_background", "collector_for_device"]
 
@@ -119,7 +119,7 @@ def validate_config(cfg: DictConfig, phase: str) -> None:
         ),
         (phase in ("learn", "reuse"), f"phase must be learn or reuse, got {phase}"),
     ]
-    if phase == "learn" and cfg.reward.name in LEARNED:
+    if phase == "learn" and is_learned(cfg.reward):
         checks.append((cfg.reward.disc.batch_size > 0, "reward.disc.batch_size must be > 0"))
         checks.append(
             (

@@ -1,0 +1,79 @@
+"""The one reward registry: conf/reward/<name>.yaml names what builds each reward (slot, learner) by _target_, and a
+new reward is one YAML away (no module lists reward names)."""
+
+import shutil
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from hydra.utils import get_method
+from omegaconf import OmegaConf
+
+from drs_torchrl.config_dir import conf_dir
+from drs_torchrl.learners.base import plain_step
+from drs_torchrl.rewards import (
+    available_rewards,
+    is_learned,
+    new_reward_learner,
+    reused_method,
+    reward_entry,
+    reward_setup,
+)
+from drs_torchrl.tasks import family_from_config
+from drs_torchrl.trainers.factories import make_envs
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_every_reward_file_names_its_builders():
+    names = available_rewards()
+    assert names == sorted(p.stem for p in (ROOT / "conf" / "reward").glob("*.yaml"))
+    assert {"drs", "sparse", "semi_sparse", "dense", "vice_raq", "oril", "gail", "gail_stages"} <= set(names)
+    for name in names:
+        entry = reward_entry(OmegaConf.create({"name": name}))
+        assert callable(get_method(entry.slot._target_)), name
+        if entry.get("learner") is not None:
+            assert callable(get_method(entry.learner._target_)), name
+    learned = {n for n in names if is_learned(OmegaConf.create({"name": n}))}
+    assert learned == {"drs", "vice_raq", "oril", "gail", "gail_stages"}
+    assert reused_method(OmegaConf.create({"name": "gail_stages"})) == "gail"
+
+
+def test_an_unknown_reward_names_the_registry():
+    with pytest.raises(ValueError, match=r"unknown reward 'nonsense'.*'drs'.*conf/reward"):
+        reward_entry(OmegaConf.create({"name": "nonsense"}))
+
+
+@pytest.mark.sim
+def test_a_new_reward_is_one_yaml_file(tmp_path, monkeypatch):
+    """A copy of the configs with two new reward files, and nothing else changed: a static one (the stage index under
+    another name) and a learned one (VICE-RAQ's learner under another name) are composed, set up and learned."""
+    conf = tmp_path / "conf"
+    shutil.copytree(conf_dir(), conf)
+    (conf / "reward" / "stage_index.yaml").write_text(
+        "name: stage_index\ncheckpoint: null\noffset: null\n"
+        "slot: {_target_: drs_torchrl.rewards.semi_sparse_reward, _partial_: true}\n"
+    )
+    (conf / "reward" / "success_classifier.yaml").write_text(
+        (conf / "reward" / "vice_raq.yaml").read_text().replace("name: vice_raq", "name: success_classifier")
+    )
+    monkeypatch.setenv("DRS_CONF_DIR", str(conf))
+    assert {"stage_index", "success_classifier"} <= set(available_rewards())
+    with initialize_config_dir(config_dir=str(conf), version_base=None):
+        static = compose("reuse", overrides=["env=turn_valve", "reward=stage_index"])
+        learned = compose("learn", overrides=["env=turn_valve", "reward=success_classifier", "demos.path=null"])
+    setup = reward_setup(static.reward, "reuse")
+    assert setup.semi_sparse and setup.frozen is None and not is_learned(static.reward)
+    assert is_learned(learned.reward) and reward_setup(learned.reward, "learn").learned is None
+    family = family_from_config(learned.env)
+    env, eval_env, _ = make_envs(learned, family, reward_setup(learned.reward, "learn"), torch.device("cpu"))
+    try:
+        learner = new_reward_learner(
+            learned.reward, family, env, {"family": family.name}, device="cpu", autocast=None, step_fn=plain_step
+        )
+        assert type(learner).__name__ == "SuccessClassifierLearner"
+        assert learner.reward.method == "success_classifier"  # its reward.pt says which reward reuses it
+    finally:
+        env.close()
+        eval_env.close()
