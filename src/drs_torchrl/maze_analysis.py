@@ -241,8 +241,11 @@ def report(root, out: str | os.PathLike) -> dict:
     for summ, rows, d in runs:
         groups.setdefault((summ["phase"], summ["map"], reward_label(summ)), []).append((summ, rows, d))
     many_maps = {ph: len({m for p, m, _ in groups if p == ph}) > 1 for ph, _, _ in groups}
-    panels = [("learn", "phase 1: DrS reward learning (train map)"), ("reuse", "phase 2: fresh DQN on the test map")]
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
+    agents = "/".join(sorted({str(s.get("algo", "dqn")).upper() for s, _, _ in runs}))  # runs before "algo": DQN
+    panels = [("learn", "phase 1: DrS reward learning (train map)"), ("reuse", f"phase 2: fresh {agents} on the test map")]
+    panels = [p for p in panels if any(ph == p[0] for ph, _, _ in groups)]  # no empty panel
+    fig, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 4.2), squeeze=False)
+    axes = axes[0]
     table = [
         "| phase | map | reward | seeds | env steps | eval success at the end (per seed) | mean +- std | mean over the last 3 evals | wall time per run (s) |",
         "|---|---|---|---|---|---|---|---|---|",
