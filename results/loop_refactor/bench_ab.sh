@@ -15,13 +15,30 @@ for round in 1 2; do
   env -u PYTHONPATH .venv/bin/drs-bench $ARGS --out "$OUT/new_$round" > "$OUT/new_$round.log" 2>&1
 done
 echo "old: $(git rev-parse --short "$OLD"), new: $(git rev-parse --short HEAD);$(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2)"
-.venv/bin/python - "$OUT" <<'PY'
+.venv/bin/python - "$OUT" <<'PY' | tee "$OUT/ab.md"
 import json, sys
 from pathlib import Path
 out = Path(sys.argv[1])
-rows = {}
-for d in sorted(out.glob("*_[12]")):
-    data = json.loads((d / "bench.json").read_text()) if (d / "bench.json").is_file() else json.loads(d.read_text())
-    rows[d.name] = data
-print(json.dumps({k: {kk: v for kk, v in r.items() if isinstance(v, (int, float))} for k, r in rows.items()}, indent=1))
+runs = {d.name: json.loads((d / "bench.json").read_text()) for d in sorted(out.glob("*_[12]")) if (d / "bench.json").is_file()}
+def rows(b):
+    r = {"raw sim env steps/s": b["raw_sim_steps_per_s"]}
+    r.update({f"collect ({k}) env steps/s": v for k, v in b["collect"].items()})
+    for L in b["learn"]:
+        r[f"phase 1 {L['algo']} {L['precision']} ({L['collector']}) env steps/s"] = L["env_steps_per_s"]
+        r[f"phase 1 {L['algo']} {L['precision']} ({L['collector']}) updates/s"] = L["updates_per_s"]
+    for c in b.get("components", []):
+        for k in ("sac_update_ms", "disc_update_ms", "reward_recompute_ms"):
+            if k in c:
+                r[f"{c['algo']} {k}"] = c[k]
+    return r
+table = {name: rows(b) for name, b in runs.items()}
+keys = list(next(iter(table.values())))
+names = sorted(table, key=lambda n: (n.split("_")[1], n))
+print("| measurement | " + " | ".join(names) + " | old mean | new mean | new / old |")
+print("|---|" + "---|" * (len(names) + 3))
+for k in keys:
+    old = [table[n][k] for n in names if n.startswith("old") and k in table[n]]
+    new = [table[n][k] for n in names if n.startswith("new") and k in table[n]]
+    mo, mn = sum(old) / len(old), sum(new) / len(new)
+    print(f"| {k} | " + " | ".join(f"{table[n].get(k, float('nan')):.1f}" for n in names) + f" | {mo:.1f} | {mn:.1f} | {mn / mo:.2f} |")
 PY

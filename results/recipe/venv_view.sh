@@ -1,0 +1,22 @@
+#!/usr/bin/env bash
+# A view of the main checkout's .venv for a study worktree pinned to an older commit: the same interpreter and
+# packages (lib/ is a link), but console scripts generated from the *worktree's* pyproject.toml, so that the pinned
+# code keeps its own entry points whatever the main checkout's layout becomes. Usage, from the worktree:
+#   bash results/recipe/venv_view.sh ../main/.venv ../study-venv && rm -f .venv && ln -s ../study-venv .venv
+set -euo pipefail
+MAIN=$(realpath "${1:?usage: venv_view.sh MAIN_VENV VIEW_DIR}"); VIEW=$(realpath -m "${2:?usage: venv_view.sh MAIN_VENV VIEW_DIR}")
+mkdir -p "$VIEW/bin"
+cp "$MAIN/pyvenv.cfg" "$VIEW/"
+ln -sfn "$MAIN/lib" "$VIEW/lib"; ln -sfn lib "$VIEW/lib64"
+ln -sfn "$(readlink -f "$MAIN/bin/python3")" "$VIEW/bin/python3"; ln -sfn python3 "$VIEW/bin/python"
+"$VIEW/bin/python3" - "$VIEW" <<'PY'
+import sys, tomllib
+from pathlib import Path
+view = Path(sys.argv[1])
+for name, target in tomllib.loads(Path("pyproject.toml").read_text())["project"]["scripts"].items():
+    module, func = target.split(":")
+    script = view / "bin" / name
+    script.write_text(f"#!{view}/bin/python3\nimport sys\nfrom {module} import {func}\nsys.exit({func}())\n")
+    script.chmod(0o755)
+    print(name, "->", target)
+PY
