@@ -30,7 +30,7 @@ def cli(monkeypatch, capsys):
     import sys
     import warnings
 
-    from drs_torchrl.trainers import apps
+    from drs_torchrl.apps import cli as apps
 
     def call(app: str, *args: str) -> tuple[int, str]:
         main = {"learn": apps.learn_main, "reuse": apps.reuse_main}[app]

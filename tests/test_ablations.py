@@ -6,7 +6,7 @@ from hydra import compose, initialize_config_dir
 from torchrl.envs.utils import check_env_specs
 
 from drs_torchrl.tasks import family_from_config, get_family, with_stages
-from drs_torchrl.trainers.apps import conf_dir
+from drs_torchrl.apps.cli import conf_dir
 from drs_torchrl.transforms import DrSReward, RewardCheckpointError
 
 

@@ -172,7 +172,7 @@ def test_fine_tuning_starts_from_the_phase1_agent(tmp_path):
     from omegaconf import OmegaConf
 
     from drs_torchrl.errors import ConfigError
-    from drs_torchrl.trainers.build import Run
+    from drs_torchrl.apps.build import Run
 
     learn = tmp_path / "learn"
     static = [a for a in TINY if not a.startswith("reward.disc")]  # static rewards have no learner settings
@@ -219,9 +219,9 @@ def test_demonstrations_fill_a_share_of_every_sac_batch(tmp_path, demos):
     from hydra import compose, initialize_config_dir
 
     from drs_torchrl.demos import load_demos
-    from drs_torchrl.trainers.apps import conf_dir
+    from drs_torchrl.apps.cli import conf_dir
     from drs_torchrl.errors import ConfigError
-    from drs_torchrl.trainers.build import Run
+    from drs_torchrl.apps.build import Run
 
     def cfg(*extra):
         base = [a for a in TINY if not a.startswith("reward.disc")] if "reward=sparse" in extra else TINY
@@ -264,9 +264,9 @@ def test_demonstrations_in_the_sac_batch_only_leave_the_stage_buffers_to_the_age
     stage buffer (the discriminators' positives) holds none of them; without a SAC share it is refused."""
     from hydra import compose, initialize_config_dir
 
-    from drs_torchrl.trainers.apps import conf_dir
+    from drs_torchrl.apps.cli import conf_dir
     from drs_torchrl.errors import ConfigError
-    from drs_torchrl.trainers.build import Run
+    from drs_torchrl.apps.build import Run
 
     def cfg(*extra):
         with initialize_config_dir(config_dir=conf_dir(), version_base=None):
@@ -299,8 +299,8 @@ def test_the_recipe_default_keeps_drs_demonstrations_in_the_sac_batch_only(tmp_p
     learned baseline, they go into the stage buffers / the learner as before (resolved true)."""
     from hydra import compose, initialize_config_dir
 
-    from drs_torchrl.trainers.apps import conf_dir
-    from drs_torchrl.trainers.build import Run
+    from drs_torchrl.apps.cli import conf_dir
+    from drs_torchrl.apps.build import Run
 
     def cfg(*extra):
         with initialize_config_dir(config_dir=conf_dir(), version_base=None):
@@ -323,9 +323,9 @@ def test_sac_share_auto_shares_where_the_demonstrations_allow_and_says_why_not(t
     from hydra import compose, initialize_config_dir
 
     from drs_torchrl.demos import load_demos, save_demos
-    from drs_torchrl.trainers.apps import conf_dir
+    from drs_torchrl.apps.cli import conf_dir
     from drs_torchrl.data.demo_mix import AUTO_SAC_SHARE
-    from drs_torchrl.trainers.build import Run
+    from drs_torchrl.apps.build import Run
 
     def trainer(name, *extra):
         with initialize_config_dir(config_dir=conf_dir(), version_base=None):

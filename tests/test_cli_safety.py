@@ -245,7 +245,7 @@ def test_an_env_id_gymnasium_does_not_know_is_one_line(cli, tmp_path):
 
 
 def test_drs_eval_refuses_a_video_path_that_is_a_file_before_any_episode(tmp_path, capsys):
-    from drs_torchrl.evaluate import main
+    from drs_torchrl.apps.evaluate import main
 
     (tmp_path / "v").write_text("a file")
     with pytest.raises(SystemExit) as e:
@@ -272,7 +272,7 @@ def test_drs_bench_collector_workers_filter_library_messages(tmp_path):
     code = (
         "import sys; from drs_torchrl.console import quiet_libraries, library_messages_requested\n"
         "library_messages_requested() or quiet_libraries()\n"
-        "from drs_torchrl.bench import bench_collect; from drs_torchrl.tasks import get_family\n"
+        "from drs_torchrl.apps.bench import bench_collect; from drs_torchrl.tasks import get_family\n"
         "print(bench_collect(get_family('pick_cube'), 64, 'background') > 0)"
     )
     env = {

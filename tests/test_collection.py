@@ -7,8 +7,8 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
-from drs_torchrl.trainers.apps import conf_dir
-from drs_torchrl.trainers.build import Run
+from drs_torchrl.apps.cli import conf_dir
+from drs_torchrl.apps.build import Run
 
 pytestmark = [pytest.mark.sim]
 
@@ -73,7 +73,7 @@ def test_a_gpu_learner_gets_the_in_process_collector_and_the_cpu_keeps_the_backg
     """drs-reuse's default algo (sac_cpu) collects in a background process, which cannot feed a CUDA learner:
     with device=cuda the in-process Collector replaces it (noted on the console, saved in the config).
     Found on the H200 device check (results/gpu/): `drs-reuse device=cuda` refused to start."""
-    from drs_torchrl.trainers.validation import collector_for_device
+    from drs_torchrl.apps.validation import collector_for_device
 
     cpu_cfg = config(f"algo.collector._target_={target}", "+algo.collector.num_workers=2")
     assert collector_for_device(cpu_cfg, torch.device("cpu")) is None

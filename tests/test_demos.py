@@ -341,8 +341,8 @@ def test_a_stage_ablation_relabels_the_demonstrations_and_their_previous_states(
     from hydra import compose, initialize_config_dir
 
     from drs_torchrl.demos import restage_demos
-    from drs_torchrl.trainers.apps import conf_dir
-    from drs_torchrl.trainers.build import Run
+    from drs_torchrl.apps.cli import conf_dir
+    from drs_torchrl.apps.build import Run
 
     # in the agent's controller, as drs-demos records them by default, so they can share the SAC batch
     states, meta = record_demos(pick_cube, "cube_2cm", 2, seed=10, control_mode="pd_ee_delta_pos", progress=False)

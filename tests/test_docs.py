@@ -53,7 +53,7 @@ def test_site_builds_strict_with_every_page(site):
         "reference/cli.html",
         "reference/config.html",
         "api/transforms.html",
-        "api/trainers.html",
+        "api/apps.html",
     ):
         assert (site / page).is_file(), page
     # a figure of the committed studies is carried into the site

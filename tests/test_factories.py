@@ -7,8 +7,8 @@ from hydra.utils import instantiate
 
 from drs_torchrl.rewards import reward_setup
 from drs_torchrl.tasks import family_from_config
-from drs_torchrl.trainers.apps import conf_dir
-from drs_torchrl.trainers.factories import make_envs, make_replay_buffer
+from drs_torchrl.apps.cli import conf_dir
+from drs_torchrl.apps.factories import make_envs, make_replay_buffer
 
 pytestmark = pytest.mark.sim
 

@@ -30,7 +30,7 @@ from drs_torchrl.envs.maze import (
     observation,
 )
 from drs_torchrl.objectives import DiscriminatorLoss
-from drs_torchrl.trainers.maze import (
+from drs_torchrl.apps.maze import (
     MazeConfigError,
     StateActionReward,
     all_state_actions,
@@ -275,7 +275,7 @@ def test_drs_maze_learn_then_reuse_then_report(tmp_path):
     learn_dir = tmp_path / "study" / "learn-s0"
     env = {**os.environ, "HYDRA_FULL_ERROR": "1"}
     exe = Path(sys.executable).parent / "drs-maze"
-    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "drs_torchrl.trainers.maze"]
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "drs_torchrl.apps.maze"]
     proc = subprocess.run(
         [*cmd, "phase=learn", "demos=10", f"hydra.run.dir={learn_dir}", *TINY],
         capture_output=True,

@@ -71,9 +71,9 @@ def test_conf_dir_finds_the_configs_inside_an_installed_package(wheel, tmp_path)
     site = tmp_path / "site"
     zipfile.ZipFile(wheel).extractall(site)
     code = (
-        "import drs_torchrl, drs_torchrl.trainers.apps as apps, drs_torchrl.trainers.maze as maze\n"
+        "import drs_torchrl, drs_torchrl.apps.cli as apps, drs_torchrl.rewards as rewards\n"
         "from hydra import compose, initialize_config_dir\n"
-        "print(drs_torchrl.__file__); print(apps.conf_dir()); print(maze._conf_dir())\n"
+        "print(drs_torchrl.__file__); print(apps.conf_dir()); print(len(rewards.available_rewards()))\n"
         "with initialize_config_dir(config_dir=apps.conf_dir(), version_base=None):\n"
         "    print(compose('learn').env.family)\n"
     )
@@ -81,7 +81,8 @@ def test_conf_dir_finds_the_configs_inside_an_installed_package(wheel, tmp_path)
     env["PYTHONPATH"] = str(site)  # ahead of the checkout's editable install
     p = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-3000:]
-    module, conf, maze_conf, family = p.stdout.split()[-4:]
+    module, conf, n_rewards, family = p.stdout.split()[-4:]
     assert Path(module).parent == site / "drs_torchrl"
-    assert Path(conf) == Path(maze_conf) == site / "drs_torchrl" / "conf"
+    assert Path(conf) == site / "drs_torchrl" / "conf"
+    assert int(n_rewards) >= 8  # the reward registry is read from the package's conf/reward
     assert family

@@ -9,8 +9,8 @@ from omegaconf import OmegaConf
 from torchrl.modules import MLP
 
 from drs_torchrl.precision import OutputFloat32, PrecisionError, native_bf16, resolve_precision
-from drs_torchrl.trainers.apps import conf_dir
-from drs_torchrl.trainers.build import Run
+from drs_torchrl.apps.cli import conf_dir
+from drs_torchrl.apps.build import Run
 
 
 def _cpuinfo_flags() -> set[str]:

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from hydra import compose, initialize_config_dir
 
-from drs_torchrl.quickstart import QuickstartError, plan, prepare_out
+from drs_torchrl.apps.quickstart import QuickstartError, plan, prepare_out
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = (
@@ -25,7 +25,7 @@ TINY = (
 
 def _cmd(out: Path, *overrides: str) -> list[str]:
     exe = Path(sys.executable).parent / "drs-quickstart"
-    base = [str(exe)] if exe.exists() else [sys.executable, "-m", "drs_torchrl.quickstart"]
+    base = [str(exe)] if exe.exists() else [sys.executable, "-m", "drs_torchrl.apps.quickstart"]
     return [*base, f"out={out}", "total_frames=1024", "baselines=[sparse]", TINY, *overrides]
 
 
@@ -89,7 +89,7 @@ def test_quickstart_plan_and_bad_settings(tmp_path):
 
 
 def test_progress_prints_one_line_per_evaluation_without_a_terminal(capsys):
-    from drs_torchrl.quickstart import Job, Progress
+    from drs_torchrl.apps.quickstart import Job, Progress
 
     p = Progress(1000, None)  # pytest's captured stdout is no terminal: lines, not bars
     assert p.bars is False

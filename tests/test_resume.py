@@ -64,7 +64,7 @@ def test_sigkill_then_resume_continues_from_the_saved_step(tmp_path):
     finally:
         if proc.poll() is None:
             proc.kill()
-    from drs_torchrl.trainers.build import Run
+    from drs_torchrl.apps.build import Run
     from drs_torchrl.checkpoint import find_training_state
 
     state_dir = find_training_state(run_dir)
@@ -179,7 +179,7 @@ def test_resume_errors_are_clear(tmp_path):
 def test_resume_config_applies_value_overrides_and_new_variant_parameters(tmp_path):
     """``resume=RUN_DIR`` takes value overrides on the saved config; ``+`` may add a variant parameter
     (e.g. ``+env.variant_overrides.max_steps=150``), nothing else that the run's config lacks."""
-    from drs_torchrl.trainers.apps import ResumeError, resume_config
+    from drs_torchrl.apps.cli import ResumeError, resume_config
 
     OmegaConf.save(
         OmegaConf.create(
@@ -205,7 +205,7 @@ def test_stop_at_success_ends_phase_1_as_finished_and_a_resume_can_ask_for_it(tm
     """``stop_at_success``: once the training success over a full episode window reaches it, the run
     ends with its final evaluation and saves, finished (not interrupted), short of total_frames; a run
     started before the key existed takes it on resume. (Threshold 0 so that a tiny run reaches it.)"""
-    from drs_torchrl.study import run_state
+    from drs_torchrl.apps.study import run_state
 
     env = dict(os.environ, PYTHONWARNINGS="ignore")
     run_dir = tmp_path / "run"

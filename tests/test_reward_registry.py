@@ -21,7 +21,7 @@ from drs_torchrl.rewards import (
     reward_setup,
 )
 from drs_torchrl.tasks import family_from_config
-from drs_torchrl.trainers.factories import make_envs
+from drs_torchrl.apps.factories import make_envs
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -57,13 +57,13 @@ def test_run_logger_fans_out_to_tensorboard_and_keeps_nan_in_csv_only(tmp_path):
 
 def test_wandb_without_the_package_is_a_config_error(monkeypatch):
     from drs_torchrl.errors import ConfigError
-    from drs_torchrl.trainers.validation import validate_config
+    from drs_torchrl.apps.validation import validate_config
 
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "wandb" else real(name, *a))
     from hydra import compose, initialize_config_dir
 
-    from drs_torchrl.trainers.apps import conf_dir
+    from drs_torchrl.apps.cli import conf_dir
 
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
         cfg = compose("learn", overrides=["logger.wandb=true"])

@@ -64,9 +64,9 @@ def test_a_failed_start_removes_a_directory_that_holds_only_its_lock(tmp_path):
 def test_the_lock_file_is_not_a_run_file(tmp_path):
     """A directory holding only the lock is fresh for drs-learn and drs-quickstart, and drs-study --report
     copies only named files."""
-    from drs_torchrl.quickstart import Job, prepare_out
-    from drs_torchrl.study import load_study, report
-    from drs_torchrl.trainers.apps import check_fresh_run_dir
+    from drs_torchrl.apps.quickstart import Job, prepare_out
+    from drs_torchrl.apps.study import load_study, report
+    from drs_torchrl.apps.cli import check_fresh_run_dir
 
     fresh = tmp_path / "fresh"
     lock_run_dir(fresh)

@@ -7,8 +7,8 @@ from hydra import compose, initialize_config_dir
 
 from drs_torchrl.checkpoint import TrainingStateError
 from drs_torchrl.models import load_policy
-from drs_torchrl.trainers.apps import conf_dir
-from drs_torchrl.trainers.build import Run
+from drs_torchrl.apps.cli import conf_dir
+from drs_torchrl.apps.build import Run
 from drs_torchrl.updaters import UpdateBudget
 
 TINY_PPO = [

@@ -1,6 +1,6 @@
 """The ``--help`` of every console script, as JSON on the last line of stdout (used by ``reference.py``).
 
-Usage: ``python docs/hooks/cli_help.py '{"drs-learn": "drs_torchrl.trainers.apps:learn_main", ...}'``.
+Usage: ``python docs/hooks/cli_help.py '{"drs-learn": "drs_torchrl.apps.cli:learn_main", ...}'``.
 
 Nothing is run: an argparse script's entry point is called with ``ArgumentParser.parse_args`` replaced by a
 function that records the parser's help and stops the call; a Hydra app prints Hydra's ``--help``, which

@@ -20,8 +20,8 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from drs_torchrl.precision import autocast
-from drs_torchrl.trainers.apps import conf_dir
-from drs_torchrl.trainers.build import Run
+from drs_torchrl.apps.cli import conf_dir
+from drs_torchrl.apps.build import Run
 
 UNFUSED = ["algo.optim.fused=false", "reward.disc.fused=false"]
 WHOLE = "<compile the whole update>"  # not a config option: loss, backward, Adam steps and target update in one torch.compile

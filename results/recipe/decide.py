@@ -20,7 +20,7 @@ import pandas as pd
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "src"))
-from drs_torchrl.comparison import success_auc  # noqa: E402
+from drs_torchrl.apps.comparison import success_auc  # noqa: E402
 
 HORIZON, MARGIN, WORKS_AT = 300_000, 0.2, 0.5
 BASELINES = ("sparse", "semi_sparse", "dense")

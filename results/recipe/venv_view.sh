@@ -9,6 +9,9 @@ mkdir -p "$VIEW/bin"
 cp "$MAIN/pyvenv.cfg" "$VIEW/"
 ln -sfn "$MAIN/lib" "$VIEW/lib"; ln -sfn lib "$VIEW/lib64"
 ln -sfn "$(readlink -f "$MAIN/bin/python3")" "$VIEW/bin/python3"; ln -sfn python3 "$VIEW/bin/python"
+for f in "$MAIN"/bin/*; do  # every other program of the venv (ruff, mkdocs, pytest, ...) as it is
+  case "$(basename "$f")" in drs-*|python*|activate*|Activate*) ;; *) ln -sfn "$f" "$VIEW/bin/$(basename "$f")";; esac
+done
 "$VIEW/bin/python3" - "$VIEW" <<'PY'
 import sys, tomllib
 from pathlib import Path

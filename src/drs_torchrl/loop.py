@@ -4,7 +4,7 @@ Each round: collect a batch (line 5); file its finished episodes, into the stage
 hand the batch to the RL updater, which takes the updates the new env steps pay for and calls the reward
 learner's step where it takes its own (lines 9-18); then log, evaluate and checkpoint on schedule. Phase 2 is the
 same loop with no reward learner: the frozen reward sits in the env. What the loop receives is built elsewhere
-(:class:`drs_torchrl.trainers.build.Run` from the Hydra config, or by hand from TorchRL pieces).
+(:class:`drs_torchrl.apps.build.Run` from the Hydra config, or by hand from TorchRL pieces).
 """
 
 from __future__ import annotations

@@ -3,6 +3,6 @@
 import sys
 
 if __name__ == "__main__":  # collector workers re-import this file: they must not run the app
-    from drs_torchrl.trainers import apps
+    from drs_torchrl.apps import cli as apps
 
     getattr(apps, sys.argv.pop(1))()

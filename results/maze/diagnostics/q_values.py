@@ -20,7 +20,7 @@ from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from drs_torchrl.envs.maze import ACTIONS, MOVES, ThreeRoomMaze, decode_cells, observation
-from drs_torchrl.trainers.maze import make_env, make_qnet
+from drs_torchrl.apps.maze import make_env, make_qnet
 
 torch.set_num_threads(1)
 DISTANCES = (1, 2, 5, 10, 20, 30)

@@ -5,7 +5,7 @@ another TorchRL script): the task family's envs with their reward in the slot, t
 sampling transform recomputes a learned reward, the reward-learning core, and the collector. The
 algorithm itself (SAC's actor, critics, ``SACLoss``, optimisers; PPO's) is ``algo.updater``
 (:mod:`drs_torchrl.updaters`).
-:class:`~drs_torchrl.trainers.build.Run` wires them into Algorithm 1.
+:class:`~drs_torchrl.apps.build.Run` wires them into Algorithm 1.
 """
 
 from __future__ import annotations

@@ -161,7 +161,7 @@ def _run(cfg: DictConfig, phase: str) -> None:
     if not library_messages_requested(cfg):
         quiet_libraries()
     from drs_torchrl.updaters.base import NonFiniteError
-    from drs_torchrl.trainers.build import train
+    from drs_torchrl.apps.build import train
 
     run_dir = HydraConfig.get().runtime.output_dir
     record = Path(run_dir) / HydraConfig.get().output_subdir if HydraConfig.get().output_subdir else None

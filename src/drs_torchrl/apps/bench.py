@@ -7,7 +7,7 @@ Measures, on the same task and machine:
     buffers;
   * ``learn_<algo>``: phase 1 (SAC + discriminators, UTD of the config) after learning starts,
     env steps/s and gradient updates/s, for each algo config given;
-  * ``plain``: the same algorithm as a plain single-file PyTorch loop (``drs_torchrl.plain_loop``)
+  * ``plain``: the same algorithm as a plain single-file PyTorch loop (``drs_torchrl.apps.plain_loop``)
     at each config's batch size, measured right before and right after that config's pipeline rows
     (this machine's speed drifts within a run), and the pipeline's speed ratio over their mean;
   * ``--precisions fp32 bf16``: each pipeline row in each learner precision (``algo.precision``);
@@ -123,8 +123,8 @@ def bench_components(
     from omegaconf import OmegaConf
     from tensordict import TensorDict
 
-    from drs_torchrl.trainers.apps import conf_dir
-    from drs_torchrl.trainers.build import Run
+    from drs_torchrl.apps.cli import conf_dir
+    from drs_torchrl.apps.build import Run
 
     def per_call_ms(fn, n=batch_reps, warm=5):
         for _ in range(warm):
@@ -307,8 +307,8 @@ def bench_learn(
 
     from hydra import compose, initialize_config_dir
 
-    from drs_torchrl.trainers.apps import conf_dir
-    from drs_torchrl.trainers.build import Run
+    from drs_torchrl.apps.cli import conf_dir
+    from drs_torchrl.apps.build import Run
 
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
         kind, _, threads = collector.partition(":")  # e.g. "background:2": the learner keeps 2 torch threads
@@ -370,8 +370,8 @@ def bench_checkpoint(transitions: int) -> dict:
 
     from hydra import compose, initialize_config_dir
 
-    from drs_torchrl.trainers.apps import conf_dir
-    from drs_torchrl.trainers.build import Run
+    from drs_torchrl.apps.cli import conf_dir
+    from drs_torchrl.apps.build import Run
 
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
         cfg = compose(
@@ -432,7 +432,7 @@ def algo_settings(algo: str) -> tuple[int, float, int, int]:
     """(SAC batch, UTD, discriminator steps per SAC update, discriminator batch per side) of ``drs-learn algo=ALGO``."""
     from hydra import compose, initialize_config_dir
 
-    from drs_torchrl.trainers.apps import conf_dir
+    from drs_torchrl.apps.cli import conf_dir
 
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
         cfg = compose("learn", overrides=[f"algo={algo}"])
@@ -549,7 +549,7 @@ def main(argv: list[str] | None = None) -> int:
         )
     res["learn"] = []
     res["plain"] = []
-    from drs_torchrl.plain_loop import run_plain_drs
+    from drs_torchrl.apps.plain_loop import run_plain_drs
     from drs_torchrl.precision import native_bf16
 
     res["machine"]["native_bf16"] = native_bf16("cpu")

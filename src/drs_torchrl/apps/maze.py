@@ -38,7 +38,7 @@ recomputed from the current discriminator), a ``QValueActor`` with an ``EGreedyM
 and a ``SoftUpdate``/``HardUpdate`` target network. DrS itself is the same reward-learning core as the
 SAC families' (:class:`~drs_torchrl.learners.DrSLearner`: stage buffers, ``DiscriminatorLoss``,
 demonstrations), and the run is logged through the same TorchRL loggers. The reward figure,
-diagnostics and report live in :mod:`drs_torchrl.maze_analysis`.
+diagnostics and report live in :mod:`drs_torchrl.apps.maze_analysis`.
 """
 
 from __future__ import annotations
@@ -74,7 +74,7 @@ from drs_torchrl.learners import (
     OfflineClassifierLearner,
     SuccessClassifierLearner,
 )
-from drs_torchrl.maze_analysis import (  # noqa: F401 (re-exported: the maze's analysis and report)
+from drs_torchrl.apps.maze_analysis import (  # noqa: F401 (re-exported: the maze's analysis and report)
     MazeConfigError,
     all_state_actions,
     dense_reward_table,

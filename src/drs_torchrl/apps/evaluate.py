@@ -96,7 +96,7 @@ def evaluate_run(
     family = family_from_config(cfg.env)
     split = split or cfg.env.split
     family.split_variants(split)  # unknown names raise the KeyError listing the variants
-    from drs_torchrl.study import RecordError, pinned_reward
+    from drs_torchrl.apps.study import RecordError, pinned_reward
 
     try:  # a committed record names the reward it reused in reward.json (drs-study --report), pinned by hash
         pinned = pinned_reward(run_dir)

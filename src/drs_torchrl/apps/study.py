@@ -269,9 +269,9 @@ def check_run(run: Run, root: Path, record: Path | None) -> str | None:
     from omegaconf.errors import OmegaConfBaseException
 
     from drs_torchrl.tasks import family_from_config
-    from drs_torchrl.trainers import apps  # noqa: F401  (registers the resolvers the configs use)
+    from drs_torchrl.apps import cli as apps  # noqa: F401  (registers the resolvers the configs use)
     from drs_torchrl.errors import ConfigError
-    from drs_torchrl.trainers.validation import validate_config
+    from drs_torchrl.apps.validation import validate_config
 
     args = resolve_args(run, root, record)
     for raw, arg in zip(run.args, args):
@@ -551,7 +551,7 @@ def report(
 
     A run with no directory under ``root`` keeps the record ``out`` (or the study's ``record``) already
     holds, so a report from a fresh checkout neither loses nor misstates what earlier sessions ran."""
-    from drs_torchrl.comparison import CompareError, compare
+    from drs_torchrl.apps.comparison import CompareError, compare
 
     out = Path(out)
     files = out / "run_files"

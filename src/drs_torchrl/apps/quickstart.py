@@ -204,7 +204,7 @@ class Progress:
 
 def run_jobs(jobs: list[Job], out: Path, n_parallel: int, progress: Progress, quiet: bool) -> int | None:
     """Run what is not finished, ``n_parallel`` at a time; returns None, or the signal that stopped it."""
-    exe = [sys.executable, "-m", "drs_torchrl.trainers.maze"]
+    exe = [sys.executable, "-m", "drs_torchrl.apps.maze"]
     env = dict(os.environ, OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", DRS_CONF_DIR=_conf_dir())
     if quiet:
         env.update(RL_WARNINGS="0", RL_LOGGING_LEVEL="WARNING")

@@ -97,7 +97,7 @@ def plot_reward_episode(run_dir: Path, out: Path, *, split: str | None = None, t
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from drs_torchrl.evaluate import EvalError, evaluate_run
+    from drs_torchrl.apps.evaluate import EvalError, evaluate_run
 
     res = evaluate_run(run_dir, episodes=tries, split=split, deterministic=False, seed=seed, keep_episodes=True)
     desc = res["reward"]

@@ -49,8 +49,8 @@ from drs_torchrl.rewards import is_learned, reward_setup
 from drs_torchrl.run_logger import RunLogger
 from drs_torchrl.signals import worker_env
 from drs_torchrl.tasks import TASK_OBSERVATION_KEY, family_from_config
-from drs_torchrl.trainers.factories import make_collector, make_envs, make_replay_buffer, make_reward_learner
-from drs_torchrl.trainers.validation import collector_for_device, collects_in_background, validate_config
+from drs_torchrl.apps.factories import make_collector, make_envs, make_replay_buffer, make_reward_learner
+from drs_torchrl.apps.validation import collector_for_device, collects_in_background, validate_config
 from drs_torchrl.transforms.classifier_reward import ClassifierReward
 from drs_torchrl.updaters.base import backward_and_step
 
