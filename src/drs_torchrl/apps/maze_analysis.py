@@ -242,7 +242,10 @@ def report(root, out: str | os.PathLike) -> dict:
         groups.setdefault((summ["phase"], summ["map"], reward_label(summ)), []).append((summ, rows, d))
     many_maps = {ph: len({m for p, m, _ in groups if p == ph}) > 1 for ph, _, _ in groups}
     agents = "/".join(sorted({str(s.get("algo", "dqn")).upper() for s, _, _ in runs}))  # runs before "algo": DQN
-    panels = [("learn", "phase 1: DrS reward learning (train map)"), ("reuse", f"phase 2: fresh {agents} on the test map")]
+    panels = [
+        ("learn", "phase 1: DrS reward learning (train map)"),
+        ("reuse", f"phase 2: fresh {agents} on the test map"),
+    ]
     panels = [p for p in panels if any(ph == p[0] for ph, _, _ in groups)]  # no empty panel
     fig, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 4.2), squeeze=False)
     axes = axes[0]
