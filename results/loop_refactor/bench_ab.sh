@@ -5,7 +5,9 @@
 set -euo pipefail
 OLD=${1:?usage: bench_ab.sh OLD_COMMIT OUT_DIR}; OUT=${2:?usage: bench_ab.sh OLD_COMMIT OUT_DIR}
 ROOT=$(pwd); WT=$(mktemp -d)/old
-git worktree add --detach "$WT" "$OLD" >/dev/null 2>&1; ln -s "$ROOT/.venv" "$WT/.venv"
+git worktree add --detach "$WT" "$OLD" >/dev/null 2>&1
+# the old code's own console scripts over this checkout's packages (the module layout changed since)
+(cd "$WT" && bash "$ROOT/results/recipe/venv_view.sh" "$ROOT/.venv" "$WT/.venv" >/dev/null)
 trap 'git worktree remove --force "$WT"' EXIT
 ARGS="--learn-frames 6000 --learning-starts 2000 --raw-steps 1000 --collect-steps 2000 --algos sac_cpu:bf16
       --collect-collectors inproc --collectors inproc:1 --no-plain --no-compile"

@@ -6,7 +6,9 @@
 set -euo pipefail
 OLD=${1:?usage: equivalence.sh OLD_COMMIT}
 ROOT=$(pwd); WT=$(mktemp -d)/old; OUT=$(mktemp -d)
-git worktree add --detach "$WT" "$OLD" >/dev/null 2>&1; ln -s "$ROOT/.venv" "$WT/.venv"
+git worktree add --detach "$WT" "$OLD" >/dev/null 2>&1
+# the old code's own console scripts over this checkout's packages (the module layout changed since)
+(cd "$WT" && bash "$ROOT/results/recipe/venv_view.sh" "$ROOT/.venv" "$WT/.venv" >/dev/null)
 trap 'git worktree remove --force "$WT"' EXIT
 COMMON="algo.hidden=[64,64] logger.interval=500 eval.interval=1500 eval.episodes=2 checkpoint_interval=1500"
 COMMON+=" logger.progress_bar=false logger.tensorboard=false torch_threads=1 seed=5"
