@@ -19,7 +19,10 @@ view = Path(sys.argv[1])
 for name, target in tomllib.loads(Path("pyproject.toml").read_text())["project"]["scripts"].items():
     module, func = target.split(":")
     script = view / "bin" / name
-    script.write_text(f"#!{view}/bin/python3\nimport sys\nfrom {module} import {func}\nsys.exit({func}())\n")
+    # the __main__ guard as pip writes it: collectors that spawn worker processes re-import this file
+    script.write_text(
+        f"#!{view}/bin/python3\nimport sys\nfrom {module} import {func}\n\nif __name__ == '__main__':\n    sys.exit({func}())\n"
+    )
     script.chmod(0o755)
     print(name, "->", target)
 PY
