@@ -91,6 +91,30 @@ def _release_all() -> None:
         unlock_run_dir(d)
 
 
+def clear_for_new_run(
+    run_dir: Path, markers, overwrite: bool, *, error: type[Exception], options: str, also=()
+) -> list[str]:
+    """Refuse to start a new run in ``run_dir`` when it holds one (any of ``markers``: files, or non-empty folders),
+    raising ``error`` with the user's ``options``, unless ``overwrite``: then that run's files (``markers`` and
+    ``also``) and its TensorBoard folder go first, so the new run's record is not mixed with them. Returns what
+    was found (empty: nothing to clear)."""
+    run_dir = Path(run_dir)
+    # an empty checkpoints/ is what a run that failed to start leaves: no run to protect
+    found = [m for m in markers if (run_dir / m).is_file() or ((run_dir / m).is_dir() and any((run_dir / m).iterdir()))]
+    if not found:
+        return found
+    if not overwrite:
+        raise error(f"{run_dir} already holds a run ({', '.join(found)}); {options}, or replace it with overwrite=true")
+    for m in (*found, *also):
+        path = run_dir / m
+        if path.is_dir():
+            shutil.rmtree(path)
+        elif path.exists():
+            path.unlink()
+    shutil.rmtree(run_dir / "tb", ignore_errors=True)
+    return found
+
+
 def nbytes(obj) -> int:
     """The bytes of the tensors in ``obj`` (tensors, TensorDicts, dicts, lists, tuples, nested)."""
     import torch

@@ -27,6 +27,7 @@ from omegaconf import DictConfig, OmegaConf
 from drs_torchrl.config_dir import conf_dir  # noqa: F401 (the CLI's config path; re-exported)
 from drs_torchrl.console import UserError, console_script, user_error_message
 from drs_torchrl.rundir import (
+    clear_for_new_run,
     DiskFullError,
     RunDirBusyError,
     RunFileError,
@@ -132,21 +133,15 @@ class ExistingRunError(UserError, ValueError):
 def check_fresh_run_dir(run_dir: Path, phase: str, overwrite: bool) -> None:
     """Refuse to start a new run in ``run_dir`` when it holds a run, unless ``overwrite``: then that
     run's files are removed first, so the new run's logs and checkpoints are not mixed with them."""
-    # an empty checkpoints/ is what a run that failed to start leaves: no run to protect
-    found = [
-        m for m in RUN_MARKERS if (run_dir / m).is_file() or ((run_dir / m).is_dir() and any((run_dir / m).iterdir()))
-    ]
+    found = clear_for_new_run(
+        run_dir,
+        RUN_MARKERS,
+        overwrite,
+        error=ExistingRunError,
+        options=f"continue it with drs-{phase} resume={run_dir}, choose another hydra.run.dir",
+    )
     if not found:
         return
-    if not overwrite:
-        raise ExistingRunError(
-            f"{run_dir} already holds a run ({', '.join(found)}); continue it with drs-{phase} resume={run_dir}, "
-            f"choose another hydra.run.dir, or replace it with overwrite=true"
-        )
-    for m in found:
-        path = run_dir / m
-        shutil.rmtree(path) if path.is_dir() else path.unlink()
-    shutil.rmtree(run_dir / "tb", ignore_errors=True)
     for old in run_dir.glob(".hydra-resume-*"):
         shutil.rmtree(old, ignore_errors=True)
     new = sorted(run_dir.glob(".hydra-new-*"))

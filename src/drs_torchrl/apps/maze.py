@@ -46,7 +46,6 @@ from __future__ import annotations
 import functools
 import json
 import os
-import shutil
 import sys
 import time
 from pathlib import Path
@@ -90,7 +89,7 @@ from drs_torchrl.console import console_script
 from drs_torchrl.run_logger import RunLogger
 from drs_torchrl.loop import EpisodeWindow, Progress, Schedule, run_algorithm1
 from drs_torchrl.rewards import available_rewards, reused_method, reward_entry
-from drs_torchrl.rundir import lock_run_dir
+from drs_torchrl.rundir import clear_for_new_run, lock_run_dir
 from drs_torchrl.transforms import ClassifierReward, DrSReward, SemiSparseReward, StageIndicator, load_reward
 from drs_torchrl.updaters.dqn import DQNUpdater
 from drs_torchrl.updaters.ppo import make_ppo_updater
@@ -367,17 +366,14 @@ def check_run_dir(run_dir: Path, overwrite: bool) -> None:
     """Refuse a directory that holds a maze run (its files would be mixed or overwritten), unless
     ``overwrite``: then that run's files go first. (A maze run takes minutes and keeps no training
     state, so there is nothing to resume: an interrupted one is run again.)"""
-    found = [f for f in RUN_FILES if (run_dir / f).is_file()]
-    if not found:
-        return
-    if not overwrite:
-        raise MazeConfigError(
-            f"{run_dir} already holds a run ({', '.join(found)}); choose another hydra.run.dir, "
-            f"or replace it with overwrite=true"
-        )
-    for f in (*RUN_FILES, "reward_map.png"):
-        (run_dir / f).unlink(missing_ok=True)
-    shutil.rmtree(run_dir / "tb", ignore_errors=True)
+    clear_for_new_run(
+        run_dir,
+        RUN_FILES,
+        overwrite,
+        error=MazeConfigError,
+        options="choose another hydra.run.dir",
+        also=("reward_map.png",),
+    )
 
 
 # ----------------------------------------------------------------------------- factories
