@@ -215,11 +215,11 @@ def sac_update_gflop(trainer) -> float:
     batch), as counted by the PyTorch profiler (``mm``/``addmm``/``bmm`` in both passes)."""
     from torch.profiler import ProfilerActivity, profile
 
-    sample = trainer.replay.sample()
+    sample = trainer.updater.replay.sample()
     with profile(activities=[ProfilerActivity.CPU], with_flops=True) as prof:
-        out = trainer.loss(sample)
+        out = trainer.updater.loss(sample)
         (out["loss_actor"] + out["loss_qvalue"] + out["loss_alpha"]).backward()
-    for p in trainer.loss.parameters():
+    for p in trainer.updater.loss.parameters():
         p.grad = None
     return sum(e.flops for e in prof.key_averages()) / 1e9
 
