@@ -154,3 +154,27 @@ def test_bench_console_is_free_of_library_notices(tmp_path):
         "Initialized LazyTensorStorage",
     ):
         assert noise not in console, (noise, console[-2000:])
+
+
+@pytest.mark.sim
+def test_the_flop_count_runs_on_a_real_phase_1_run(tmp_path):
+    """drs-bench's FLOP count of one SAC update reads the run's updater (a tiny real PickCube phase 1)."""
+    from hydra import compose, initialize_config_dir
+
+    from drs_torchrl.apps.bench import sac_update_gflop
+    from drs_torchrl.apps.build import Run
+    from drs_torchrl.config_dir import conf_dir
+
+    tiny = ["total_frames=320", "algo.learning_starts=256", "algo.batch_size=32", "algo.hidden=[32,32]",
+            "reward.disc.batch_size=16", "eval.episodes=0", "logger.progress_bar=false", "logger.tensorboard=false",
+            "checkpoint_interval=1000000", "algo.collector._target_=torchrl.collectors.Collector"]  # fmt: skip
+    with initialize_config_dir(config_dir=conf_dir(), version_base=None):
+        cfg = compose("learn", overrides=tiny)
+    Run(cfg, "learn", tmp_path).run()
+    run = Run(cfg, "learn", tmp_path, resume=True)
+    try:
+        assert len(run.updater.replay) == 320
+        # batch 32, hidden 32x32: a few MFLOP of matrix products in the forward and backward passes
+        assert 0 < sac_update_gflop(run) < 1
+    finally:
+        run.close()
