@@ -326,13 +326,12 @@ class Run:
         """Start from another run's ``checkpoints/policy.pt`` (fine-tuning, Sec. 5.4.2); optimisers and replay
         start fresh."""
         file, ck = read_policy_checkpoint(run_dir)
-        problems = []
         if ck.get("family") != self.family.name:
-            problems.append(f"it is a policy for family {ck.get('family')!r}, this run is {self.family.name!r}")
-        if not problems and hasattr(self.updater, "init_from"):
-            problems = self.updater.init_from(ck)
+            problems = [f"it is a policy for family {ck.get('family')!r}, this run is {self.family.name!r}"]
         elif not hasattr(self.updater, "init_from"):
-            problems.append(f"algo updater {self.updater.name} cannot start from a policy checkpoint")
+            problems = [f"algo updater {self.updater.name} cannot start from a policy checkpoint"]
+        else:
+            problems = self.updater.init_from(ck)
         if problems:
             raise ConfigError(f"init_from={run_dir}: cannot fine-tune from {file}: " + "; ".join(problems))
         self.init_from = str(file)

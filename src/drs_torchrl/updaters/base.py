@@ -71,7 +71,6 @@ class Updater:
     policy: Any
     eval_policy: Any
     learning_starts: int = 0
-    off_policy: bool = True
 
     def __init__(self):
         self.updates = 0
@@ -84,17 +83,15 @@ class Updater:
         """A collected batch (the updater stores what it needs)."""
         raise NotImplementedError
 
-    def update(self, frames: int, total_frames: int, learner_step: LearnerStep | None) -> list[TensorDict]:
-        """The updates owed for the ``frames`` env steps just stored (``total_frames`` so far); returns the
-        statistics of each, with ``"reward"`` the rewards trained on (for the log)."""
+    def update(self, frames: int, total_frames: int, learner_step: LearnerStep | None, log) -> int:
+        """The updates owed for the ``frames`` env steps just stored (``total_frames`` so far), calling
+        ``learner_step`` where the reward learner's steps belong; each update's statistics and the rewards it
+        trained on go to ``log.update(stats, rewards)``, the learner's to ``log.learner(stats)``. Returns the
+        number of updates taken."""
         raise NotImplementedError
 
     def after_collect(self, frames: int) -> None:
         """Called after every batch (e.g. epsilon annealing)."""
-
-    def stats_keys(self) -> Sequence[str]:
-        """The keys of an update's statistics that the log averages."""
-        return ()
 
     def state_dict(self) -> dict[str, Any]:
         """Networks, target networks, optimisers, counters (``loss``, ``optimizers``, ``updates``, ``owed_updates``)."""

@@ -42,7 +42,6 @@ class PPOUpdater(Updater):
     """
 
     name = "ppo"
-    off_policy = False
 
     def __init__(
         self,
