@@ -705,3 +705,45 @@ def test_ppo_learns_the_maze_reward_beside_it_and_reuses_it(tmp_path):
         )
     assert r["algo"] == "ppo" and r["map"] == "test" and r["frames"] == 1024
     assert (tmp_path / "reuse" / "policy.pt").is_file()
+
+
+def test_drs_learn_and_drs_reuse_run_the_maze_family(tmp_path, cli):
+    """``drs-learn env=maze algo=dqn`` and ``drs-reuse env=maze reward=drs`` are the maze's phases: the same
+    runs as ``drs-maze phase=learn|reuse`` (apps/cli.py:maze_arguments)."""
+    from drs_torchrl.apps.cli import maze_arguments
+
+    assert maze_arguments(["env=maze", "algo=ppo", "reward=sparse", "seed=3"], "reuse") == [
+        "phase=reuse",
+        "agent=ppo",
+        "reward.name=sparse",
+        "seed=3",
+    ]
+    assert maze_arguments(["env=pick_cube"], "learn") is None
+    learn_dir = tmp_path / "learn"
+    exe = Path(sys.executable).parent / "drs-learn"
+    proc = subprocess.run(
+        [str(exe), "env=maze", "algo=dqn", "demos=10", f"hydra.run.dir={learn_dir}", *TINY],
+        capture_output=True,
+        text=True,
+        timeout=180,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summ = json.loads((learn_dir / "summary.json").read_text())
+    assert summ["phase"] == "learn" and summ["map"] == "train" and summ["frames"] == 1024
+    assert DrSReward.from_checkpoint(learn_dir / "reward.pt").discriminators.trained.all()
+    # phase 2 in this process: the frozen reward on the test map
+    code, err = cli("reuse", "env=maze", "reward=drs", f"reward.checkpoint={learn_dir / 'reward.pt'}",
+                    f"hydra.run.dir={tmp_path / 'reuse'}", *TINY)  # fmt: skip
+    assert code == 0, err[-3000:]
+    summ = json.loads((tmp_path / "reuse" / "summary.json").read_text())
+    assert summ["phase"] == "reuse" and summ["map"] == "test" and summ["reward"] == "drs"
+    # what the maze does not take is refused with the reason, nothing written
+    for args, expect in [
+        (["algo=sac_cpu"], "env=maze runs algo=dqn (the paper's maze agent) or algo=ppo, got algo=sac_cpu"),
+        ([f"resume={learn_dir}"], "a maze run keeps no training state"),
+        (["env.split=test"], "its settings are conf/maze.yaml's"),
+    ]:
+        code, err = cli("learn", "env=maze", *args, f"hydra.run.dir={tmp_path / 'bad'}")
+        assert code == 2 and expect in err, (args, err)
+    assert not (tmp_path / "bad").exists()

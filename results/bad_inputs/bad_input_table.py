@@ -232,6 +232,8 @@ def cases(work: Path, good_run: Path) -> list[Case]:
             "drs-maze with a missing reward checkpoint",
             ["drs-maze", "phase=reuse", "reward.name=drs", "reward.checkpoint={d}/none.pt", "hydra.run.dir={d}/m"],
         ),
+        Case("drs-maze with a value of the wrong type", ["drs-maze", "dqn.lr=fast", "hydra.run.dir={d}/m"]),
+        Case("drs-learn env=maze with a ManiSkill algorithm", ["drs-learn", "env=maze", "algo=sac_cpu"]),
         Case(
             "drs-maze report of a folder without runs",
             ["drs-maze", "phase=report", "report.root={d}", "report.out={d}/r"],

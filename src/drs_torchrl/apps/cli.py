@@ -12,6 +12,7 @@ Configs live in the repository's ``conf/`` (or ``$DRS_CONF_DIR``). Examples::
 from __future__ import annotations
 
 import errno
+import functools
 import os
 import shutil
 import signal
@@ -236,15 +237,79 @@ def _user_message(exc: Exception, cfg: DictConfig, phase: str, run_dir) -> str |
     return msg
 
 
+class MazeFamilyError(UserError, ValueError):
+    """``drs-learn env=maze`` with an override the maze family does not take."""
+
+
+MAZE_ALGOS = ("dqn", "ppo")
+
+
+def maze_arguments(args: list[str], phase: str) -> list[str] | None:
+    """``drs-learn env=maze ...`` / ``drs-reuse env=maze ...`` as the ``drs-maze`` arguments that run it, or None
+    when ``args`` do not name the maze.
+
+    The maze is a family of the same loop of Algorithm 1 (``apps/maze.py`` builds its pieces: the batched grid
+    env, the (s, a) reward, the shortest-path demonstrations) with its own config, ``conf/maze.yaml``: its env,
+    reward input and agents share no setting with the ManiSkill families' groups. So ``algo=dqn|ppo`` becomes
+    ``agent=``, ``reward=NAME`` becomes ``reward.name=NAME``, and the other overrides are ``conf/maze.yaml``'s."""
+    if "env=maze" not in args:
+        return None
+    out = [f"phase={phase}"]
+    for a in args:
+        key, _, value = a.partition("=")
+        if a == "env=maze":
+            continue
+        if key == "algo":
+            if value not in MAZE_ALGOS:
+                raise MazeFamilyError(f"env=maze runs algo=dqn (the paper's maze agent) or algo=ppo, got algo={value}")
+            out.append(f"agent={value}")
+        elif key == "reward":
+            out.append(f"reward.name={value}")
+        elif key in ("resume", "init_from", "phase") or key.startswith(("env.", "algo.")):
+            raise MazeFamilyError(
+                f"env=maze does not take {key}=: a maze run keeps no training state (run it again) and its "
+                "settings are conf/maze.yaml's (e.g. dqn.lr=..., map=test_shift3); see drs-maze --help"
+            )
+        else:
+            out.append(a)
+    return out
+
+
+def _maze_or(main, phase: str):
+    """``main``, unless the arguments name ``env=maze``: then ``drs-maze`` runs them (see :func:`maze_arguments`)."""
+
+    @functools.wraps(main)
+    def dispatch():
+        try:
+            args = maze_arguments(sys.argv[1:], phase)
+        except MazeFamilyError as exc:
+            print(f"drs-{phase}: error: {exc}", file=sys.stderr)
+            sys.exit(2)
+        if args is None:
+            return main()
+        from drs_torchrl.apps import maze
+
+        sys.argv = [sys.argv[0], *args]
+        return maze.main()
+
+    return dispatch
+
+
 @console_script("drs-learn", quiet=False)
 @hydra.main(config_path=conf_dir(), config_name="learn", version_base=None)
-def learn_main(cfg: DictConfig) -> None:
-    """Phase 1: SAC on the training variants, stage buffers, per-stage discriminators."""
+def _learn(cfg: DictConfig) -> None:
     _run(cfg, "learn")
 
 
 @console_script("drs-reuse", quiet=False)
 @hydra.main(config_path=conf_dir(), config_name="reuse", version_base=None)
-def reuse_main(cfg: DictConfig) -> None:
-    """Phase 2: a fresh SAC agent on held-out variants with a frozen reward (or a baseline)."""
+def _reuse(cfg: DictConfig) -> None:
     _run(cfg, "reuse")
+
+
+learn_main = _maze_or(_learn, "learn")
+learn_main.__doc__ = """Phase 1: SAC (or ``algo=ppo``) on the training variants, stage buffers, per-stage
+discriminators; ``env=maze algo=dqn`` runs the maze family."""
+reuse_main = _maze_or(_reuse, "reuse")
+reuse_main.__doc__ = """Phase 2: a fresh agent on held-out variants with a frozen reward (or a baseline);
+``env=maze`` runs the maze family."""

@@ -84,6 +84,7 @@ from drs_torchrl.apps.maze_analysis import (  # noqa: F401 (re-exported: the maz
     reward_diagnostics,
     reward_label,
 )
+from drs_torchrl.apps.schema import MazeSchema, check
 from drs_torchrl.config_dir import conf_dir
 from drs_torchrl.console import console_script
 from drs_torchrl.run_logger import RunLogger
@@ -278,6 +279,8 @@ def _is_classifier(entry) -> bool:
 
 
 def validate(cfg: DictConfig) -> None:
+    """The schema's types and ranges (``apps/schema.py``), then the rules between fields and the registry's names."""
+    check(cfg, MazeSchema, MazeConfigError)
     entry, name = _entry(cfg), cfg.reward.name
     learned = entry is not None and entry.get("learner") is not None
     learnable = [n for n in available_rewards() if (e := reward_entry(OmegaConf.create({"name": n}))).get("learner")
@@ -308,25 +311,12 @@ def validate(cfg: DictConfig) -> None:
             f"reward.name={name} learns from demonstrations: set demos > 0",
         ),
         (cfg.map is None or cfg.map in GATES, f"map must be null or one of {sorted(GATES)}, got {cfg.map!r}"),
-        (
-            cfg.total_frames > 0 and cfg.num_envs > 0 and cfg.max_steps > 0,
-            "total_frames, num_envs and max_steps must be > 0",
-        ),
         (cfg.get("agent", "dqn") in ("dqn", "ppo"), f"agent must be dqn or ppo, got {cfg.get('agent')!r}"),
         (
             algo_config(cfg).frames_per_batch % cfg.num_envs == 0,
             f"{cfg.get('agent', 'dqn')}.frames_per_batch ({algo_config(cfg).frames_per_batch}) must be a multiple of "
             f"num_envs ({cfg.num_envs})",
         ),
-        (cfg.dqn.utd > 0 and cfg.dqn.batch_size > 0, "dqn.utd and dqn.batch_size must be > 0"),
-        (0 < cfg.dqn.gamma <= 1, "dqn.gamma must be in (0, 1]"),
-        (cfg.dqn.n_steps >= 1, "dqn.n_steps must be >= 1"),
-        (
-            cfg.dqn.get("reward_scale", 1.0) > 0,
-            "dqn.reward_scale must be > 0 (it multiplies the reward the agent trains on)",
-        ),
-        (cfg.eval.interval > 0 and cfg.eval.episodes > 0, "eval.interval and eval.episodes must be > 0"),
-        (cfg.demos >= 0, "demos must be >= 0"),
         (
             cfg.reward.get("input", "state_action") in REWARD_INPUTS,
             f"reward.input must be one of {REWARD_INPUTS}, got {cfg.reward.get('input')!r}",
@@ -338,10 +328,6 @@ def validate(cfg: DictConfig) -> None:
         (
             cfg.reward.get("positives", "all") != "demos" or cfg.demos > 0,
             "reward.positives=demos makes the demonstrations the only positives: set demos > 0",
-        ),
-        (
-            cfg.reward.get("reuse_alpha") is None or 0 <= float(cfg.reward.reuse_alpha) < 0.5,
-            "reward.reuse_alpha must be null or in [0, 0.5) (0 keeps only DrS's constant part)",
         ),
         (cfg.coords in OBS_DIMS, f"coords must be one of {sorted(OBS_DIMS)}, got {cfg.coords!r}"),
         (

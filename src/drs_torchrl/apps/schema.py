@@ -1,0 +1,270 @@
+"""The type and range of every numeric setting, declared once: structured configs (dataclasses, registered in
+Hydra's ConfigStore as ``schema/run`` and ``schema/maze``) and one check that reads them.
+
+``check(cfg, RunSchema)`` validates a composed *or resumed* config against the schema with OmegaConf's own type
+validation (``total_frames=abc`` is refused by OmegaConf), then applies each field's declared range. A field's
+range, example and hint live in its metadata (``setting(gt=0, example=...)``), so a new setting is declared in
+one line; rules between fields (``buffer_size >= batch_size``, the demonstrations' switches) stay in
+``apps/validation.py`` and ``apps/maze.py:validate``.
+
+Why the schema is not in the YAML defaults lists: a resumed run's ``config.yaml`` and ``drs-study --check`` never
+pass Hydra's composition, and a schema there would close every config group to keys it does not declare; checked
+here, every path gives the same one-line error (exit code 2).
+"""
+
+import dataclasses  # no `from __future__ import annotations`: the fields' types are read at run time
+import typing
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+from hydra.core.config_store import ConfigStore
+from omegaconf import MISSING, DictConfig, OmegaConf
+from omegaconf.errors import ValidationError
+
+from drs_torchrl.errors import ConfigError
+
+__all__ = ["setting", "check", "RunSchema", "MazeSchema"]
+
+
+def setting(
+    *,
+    gt: float | None = None,
+    ge: float | None = None,
+    lt: float | None = None,
+    le: float | None = None,
+    example: Any = None,
+    noun: str = "",
+    hint: str = "",
+) -> Any:
+    """A schema field: no default (the YAML files hold the defaults), its range and the example shown on a type
+    error (``e.g. total_frames=200000``); ``noun`` names what the range is of ("a success rate"), ``hint`` is appended
+    to a range error."""
+    return field(default=MISSING, metadata=dict(gt=gt, ge=ge, lt=lt, le=le, example=example, noun=noun, hint=hint))
+
+
+# ----------------------------------------------------------------------------- drs-learn / drs-reuse
+@dataclass
+class EvalSchema:
+    interval: int = setting(gt=0, example=20000)
+    episodes: int = setting(ge=0, example=20)
+    episode_seed: Optional[int] = setting(ge=0, example=1000)
+
+
+@dataclass
+class LoggerSchema:
+    interval: int = setting(gt=0, example=2000)
+    episode_window: int = setting(gt=0, example=50)
+
+
+@dataclass
+class AlgoSchema:
+    """The keys algorithms share; a key an algorithm does not use (``utd`` for PPO, ``epochs`` for SAC) is absent."""
+
+    batch_size: int = setting(gt=0, example=256)
+    frames_per_batch: int = setting(gt=0, example=64)
+    learning_starts: int = setting(ge=0, example=4000)
+    buffer_size: int = setting(gt=0, example=2000000)
+    utd: float = setting(gt=0, example=0.5)
+    epochs: int = setting(gt=0, example=4)
+    gamma: float = setting(gt=0, le=1, example=0.8)
+    tau: float = setting(gt=0, le=1, example=0.005)
+
+
+@dataclass
+class DiscSchema:
+    lr: float = setting(gt=0, example=0.0003)
+    batch_size: int = setting(gt=0, example=256)
+    updates_per_sac_update: float = setting(gt=0, example=0.5, hint="(fractions allowed, e.g. 0.5)")
+    window: int = setting(gt=0, example=100)
+    early_stop_threshold: Optional[float] = setting(gt=0, le=1, example=0.95)
+
+
+@dataclass
+class RewardSchema:
+    name: str = setting()
+    alpha: float = setting(example=0.3333)
+    stage_buffer_size: int = setting(gt=0, example=1000000)
+    disc: Optional[DiscSchema] = None  # learned rewards only
+
+
+@dataclass
+class RunSchema:
+    """drs-learn / drs-reuse (``conf/learn.yaml``, ``conf/reuse.yaml`` and their groups)."""
+
+    total_frames: int = setting(gt=0, example=200000)
+    seed: int = setting(example=0)
+    checkpoint_interval: int = setting(gt=0, example=20000)
+    torch_threads: Optional[int] = setting(gt=0, example=1)
+    stop_at_success: Optional[float] = setting(ge=0, le=1, example=0.8, noun="a success rate")
+    eval: EvalSchema = field(default_factory=EvalSchema)
+    logger: LoggerSchema = field(default_factory=LoggerSchema)
+    algo: AlgoSchema = field(default_factory=AlgoSchema)
+    reward: RewardSchema = field(default_factory=RewardSchema)
+
+
+# ----------------------------------------------------------------------------- drs-maze
+@dataclass
+class MazeDQNSchema:
+    gamma: float = setting(gt=0, le=1, example=0.99)
+    lr: float = setting(gt=0, example=0.001)
+    batch_size: int = setting(gt=0, example=256)
+    frames_per_batch: int = setting(gt=0, example=256)
+    utd: float = setting(gt=0, example=0.25)
+    learning_starts: int = setting(ge=0, example=5000)
+    buffer_size: int = setting(gt=0, example=200000)
+    n_steps: int = setting(ge=1, example=5)
+    reward_scale: float = setting(gt=0, example=0.1, hint="(it multiplies the reward the agent trains on)")
+    eps_init: float = setting(ge=0, le=1, example=1.0)
+    eps_end: float = setting(ge=0, le=1, example=0.05)
+    eps_anneal_frac: float = setting(gt=0, le=1, example=0.5)
+
+
+@dataclass
+class MazePPOSchema:
+    gamma: float = setting(gt=0, le=1, example=0.99)
+    lmbda: float = setting(ge=0, le=1, example=0.95)
+    lr: float = setting(gt=0, example=0.0003)
+    frames_per_batch: int = setting(gt=0, example=2048)
+    batch_size: int = setting(gt=0, example=256)
+    epochs: int = setting(gt=0, example=4)
+    reward_scale: float = setting(gt=0, example=1.0)
+
+
+@dataclass
+class MazeDiscSchema:
+    lr: float = setting(gt=0, example=0.001)
+    batch_size: int = setting(gt=0, example=256)
+    updates_per_dqn_update: float = setting(gt=0, example=1)
+    window: int = setting(gt=0, example=100)
+    early_stop_threshold: Optional[float] = setting(gt=0, le=1, example=0.95)
+
+
+@dataclass
+class MazeRewardSchema:
+    name: str = setting()
+    alpha: float = setting(example=0.3333)
+    reuse_alpha: Optional[float] = setting(ge=0, lt=0.5, example=0.0, hint="(0 keeps only DrS's constant part)")
+    stage_buffer_size: int = setting(gt=0, example=20000)
+    dense_coef: float = setting(ge=0, example=1.0)
+    disc: MazeDiscSchema = field(default_factory=MazeDiscSchema)
+
+
+@dataclass
+class MazeEvalSchema:
+    interval: int = setting(gt=0, example=10000)
+    episodes: int = setting(gt=0, example=64)
+
+
+@dataclass
+class MazeSchema:
+    """drs-maze (``conf/maze.yaml``)."""
+
+    total_frames: int = setting(gt=0, example=200000)
+    seed: int = setting(example=0)
+    num_threads: int = setting(gt=0, example=1)
+    num_envs: int = setting(gt=0, example=32)
+    max_steps: int = setting(gt=0, example=200)
+    demos: int = setting(ge=0, example=100)
+    reward: MazeRewardSchema = field(default_factory=MazeRewardSchema)
+    dqn: MazeDQNSchema = field(default_factory=MazeDQNSchema)
+    ppo: MazePPOSchema = field(default_factory=MazePPOSchema)
+    eval: MazeEvalSchema = field(default_factory=MazeEvalSchema)
+
+
+_store = ConfigStore.instance()
+_store.store(group="schema", name="run", node=RunSchema)
+_store.store(group="schema", name="maze", node=MazeSchema)
+
+
+# ----------------------------------------------------------------------------- the check
+def check(cfg: DictConfig, schema: type, error: type[Exception] = ConfigError) -> None:
+    """Raise ``error`` with one line naming the first setting of ``cfg`` whose type or range ``schema`` refuses.
+
+    Keys the schema does not declare pass; a declared key absent from ``cfg`` (a setting its algorithm or reward
+    does not have) is not checked."""
+    view = OmegaConf.create(_project(cfg, schema))
+    try:
+        typed = OmegaConf.merge(OmegaConf.structured(schema), view)
+    except ValidationError as exc:
+        key = exc.full_key
+        value = OmegaConf.select(view, key)
+        value = OmegaConf.to_container(value) if OmegaConf.is_config(value) else value
+        f = _field(schema, key)
+        raise error(
+            f"{key} must be {_kind(f)}, got {value!r} ({type(value).__name__}); e.g. {key}={_example(f)}"
+        ) from None
+    for key, f in _leaves(schema):
+        if OmegaConf.select(typed, key, default=None) is None or OmegaConf.is_missing(typed, key):
+            continue
+        bad = _out_of_range(OmegaConf.select(typed, key), f.metadata)
+        if bad:
+            m = f.metadata
+            what = ("null or " if type(None) in typing.get_args(f.type) else "") + (
+                m["noun"] + " " if m["noun"] else ""
+            )
+            hint = f" {m['hint']}" if m["hint"] else f"; e.g. {key}={_example(f)}"
+            raise error(f"{key} must be {what}{bad}, got {OmegaConf.select(view, key)}{hint}")
+
+
+def _project(cfg: DictConfig, schema: type) -> dict:
+    """The values of ``cfg`` at the schema's keys (interpolations resolved), nothing else."""
+    out = {}
+    for f in dataclasses.fields(schema):
+        if f.name not in cfg:
+            continue
+        sub = _dataclass_of(f)
+        value = cfg[f.name] if not OmegaConf.is_missing(cfg, f.name) else MISSING
+        if sub is not None and isinstance(value, DictConfig):
+            out[f.name] = _project(value, sub)
+        elif isinstance(value, DictConfig) or OmegaConf.is_list(value):
+            out[f.name] = OmegaConf.to_container(value, resolve=True)
+        else:
+            out[f.name] = value
+    return out
+
+
+def _dataclass_of(f: dataclasses.Field) -> type | None:
+    """The schema of a nested section (``eval: EvalSchema``, ``disc: Optional[DiscSchema]``), else None."""
+    return next((t for t in (f.type, *typing.get_args(f.type)) if dataclasses.is_dataclass(t)), None)
+
+
+def _leaves(schema: type, prefix: str = ""):
+    for f in dataclasses.fields(schema):
+        sub = _dataclass_of(f)
+        if sub is not None:
+            yield from _leaves(sub, f"{prefix}{f.name}.")
+        else:
+            yield prefix + f.name, f
+
+
+def _field(schema: type, key: str) -> dataclasses.Field:
+    head, _, rest = key.partition(".")
+    f = next(f for f in dataclasses.fields(schema) if f.name == head)
+    return _field(_dataclass_of(f), rest) if rest else f
+
+
+def _kind(f: dataclasses.Field) -> str:
+    ann = f.type
+    args = [a for a in typing.get_args(ann) if a is not type(None)] or [ann]
+    words = {int: "an integer", float: "a number", str: "a string", bool: "true or false"}
+    kind = words.get(args[0], str(args[0]))
+    return kind + (" or null" if type(None) in typing.get_args(ann) else "")
+
+
+def _example(f: dataclasses.Field) -> Any:
+    ex = f.metadata.get("example")
+    return 1 if ex is None else ex
+
+
+def _out_of_range(v: float, m: dict) -> str | None:
+    lo = (m.get("gt"), "(") if m.get("gt") is not None else (m.get("ge"), "[")
+    hi = (m.get("lt"), ")") if m.get("lt") is not None else (m.get("le"), "]")
+    too_low = lo[0] is not None and (v <= lo[0] if lo[1] == "(" else v < lo[0])
+    too_high = hi[0] is not None and (v >= hi[0] if hi[1] == ")" else v > hi[0])
+    if not (too_low or too_high):
+        return None
+    if lo[0] is not None and hi[0] is not None:
+        return f"in {lo[1]}{lo[0]:g}, {hi[0]:g}{hi[1]}"
+    if lo[0] is not None:
+        return f"{'>' if lo[1] == '(' else '>='} {lo[0]:g}"
+    return f"{'<' if hi[1] == ')' else '<='} {hi[0]:g}"

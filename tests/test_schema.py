@@ -1,0 +1,119 @@
+"""apps/schema.py: the types and ranges of drs-learn / drs-reuse / drs-maze settings, declared once as structured
+configs and checked with OmegaConf's validation, for composed and for resumed configs alike."""
+
+import dataclasses
+
+import pytest
+from hydra import compose, initialize_config_dir
+from hydra.core.config_store import ConfigStore
+from omegaconf import OmegaConf
+
+from drs_torchrl.apps.maze import MazeConfigError, validate
+from drs_torchrl.apps.schema import MazeSchema, RunSchema, check, setting
+from drs_torchrl.apps.validation import validate_config
+from drs_torchrl.config_dir import conf_dir
+from drs_torchrl.errors import ConfigError
+
+
+def composed(name, *overrides):
+    with initialize_config_dir(config_dir=conf_dir(), version_base=None):
+        return compose(name, overrides=list(overrides))
+
+
+@pytest.mark.parametrize(
+    "config,overrides",
+    [
+        ("learn", []),
+        ("learn", ["algo=ppo"]),
+        ("learn", ["algo=sac_paper", "env=turn_valve"]),
+        ("learn", ["reward=vice_raq"]),
+        ("reuse", ["reward=sparse"]),
+        ("reuse", ["reward=gail_stages"]),
+        ("maze", []),
+        ("maze", ["agent=ppo", "phase=reuse", "reward.name=sparse"]),
+    ],
+)
+def test_every_shipped_config_passes_its_schema(config, overrides):
+    check(composed(config, *overrides), MazeSchema if config == "maze" else RunSchema)
+
+
+@pytest.mark.parametrize(
+    "override,message",
+    [
+        ("total_frames=abc", "total_frames must be an integer, got 'abc' (str); e.g. total_frames=200000"),
+        ("seed=1.5", "seed must be an integer, got 1.5 (float)"),
+        ("total_frames=true", "total_frames must be an integer, got True (bool)"),
+        ("algo.gamma=high", "algo.gamma must be a number, got 'high' (str); e.g. algo.gamma=0.8"),
+        ("reward.disc.lr=[1]", "reward.disc.lr must be a number, got [1] (list)"),
+        ("eval.episode_seed=first", "eval.episode_seed must be an integer or null, got 'first'"),
+        ("total_frames=-5", "total_frames must be > 0, got -5; e.g. total_frames=200000"),
+        ("algo.gamma=0", "algo.gamma must be in (0, 1], got 0"),
+        ("eval.episode_seed=-1", "eval.episode_seed must be null or >= 0, got -1"),
+        ("stop_at_success=1.5", "stop_at_success must be null or a success rate in [0, 1], got 1.5"),
+        ("reward.disc.updates_per_sac_update=0", "updates_per_sac_update must be > 0, got 0 (fractions allowed"),
+        ("algo.buffer_size=16", "algo.buffer_size (16) is smaller than algo.batch_size (256)"),  # cross-field
+    ],
+)
+def test_a_bad_value_is_named_with_its_type_or_range_and_an_example(override, message):
+    with pytest.raises(ConfigError) as err:
+        validate_config(composed("learn", override), "learn")
+    assert message in str(err.value) and "\n" not in str(err.value)
+
+
+def test_a_resumed_config_is_checked_like_a_composed_one(tmp_path):
+    """A run's config.yaml edited by hand never passes Hydra's composition: the same check refuses it."""
+    cfg = composed("learn")
+    path = tmp_path / "config.yaml"
+    path.write_text(OmegaConf.to_yaml(cfg, resolve=False).replace("total_frames: 300000", "total_frames: lots"))
+    with pytest.raises(ConfigError, match="total_frames must be an integer, got 'lots'"):
+        validate_config(OmegaConf.load(path), "learn")
+
+
+def test_settings_an_algorithm_does_not_have_are_not_demanded():
+    cfg = composed("learn", "algo=ppo")
+    assert "utd" not in cfg.algo and "tau" not in cfg.algo
+    validate_config(cfg, "learn")
+    assert "epochs" not in composed("learn").algo
+
+
+@pytest.mark.parametrize(
+    "override,message",
+    [
+        ("total_frames=x", "total_frames must be an integer, got 'x'"),
+        ("dqn.n_steps=0", "dqn.n_steps must be >= 1, got 0"),
+        ("dqn.reward_scale=0", "dqn.reward_scale must be > 0, got 0 (it multiplies the reward the agent trains on)"),
+        ("reward.reuse_alpha=0.5", "reward.reuse_alpha must be null or in [0, 0.5), got 0.5"),
+        ("demos=-1", "demos must be >= 0, got -1"),
+        ("num_envs=7", "frames_per_batch (256) must be a multiple of num_envs (7)"),  # cross-field, in validate
+    ],
+)
+def test_the_maze_config_uses_the_same_schema_check(override, message):
+    with pytest.raises(MazeConfigError) as err:
+        validate(composed("maze", override))
+    assert message in str(err.value)
+
+
+def test_the_schemas_are_in_hydras_config_store_and_every_setting_has_an_example():
+    repo = ConfigStore.instance().repo["schema"]
+    assert {"run.yaml", "maze.yaml"} <= set(repo)
+
+    def leaves(cls):
+        for f in dataclasses.fields(cls):
+            sub = next((t for t in (f.type, *getattr(f.type, "__args__", ())) if dataclasses.is_dataclass(t)), None)
+            yield from leaves(sub) if sub else [f]
+
+    for schema in (RunSchema, MazeSchema):
+        for f in leaves(schema):
+            assert f.name == "name" or f.metadata["example"] is not None, f.name
+
+
+def test_a_new_setting_is_one_line_of_a_dataclass():
+    @dataclasses.dataclass
+    class Tiny:
+        rate: float = setting(gt=0, lt=1, example=0.5)
+
+    check(OmegaConf.create({"rate": 0.2, "other": "x"}), Tiny)
+    with pytest.raises(ConfigError, match=r"rate must be in \(0, 1\), got 1; e.g. rate=0.5"):
+        check(OmegaConf.create({"rate": 1}), Tiny)
+    with pytest.raises(ValueError, match="rate must be a number"):
+        check(OmegaConf.create({"rate": "fast"}), Tiny, ValueError)
