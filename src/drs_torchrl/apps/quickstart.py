@@ -420,8 +420,9 @@ def main(cfg: DictConfig) -> None:
     todo = [j for j in jobs if j.name not in kept]
     print(f"drs-quickstart: DrS on the three-room maze, seed {cfg.seed}, into {out}", flush=True)
     print(
-        f"  phase 1 learns the reward on the train map; phase 2 reuses it on the test map beside "
-        f"{', '.join(LABELS.get(b, b) for b in cfg.baselines)}; {len(todo)} runs of {int(cfg.total_frames)} env steps, "
+        "  phase 1 learns the reward on the train map; phase 2 reuses it on the test map"
+        + (f" beside {', '.join(LABELS.get(b, b) for b in cfg.baselines)}" if cfg.baselines else "")
+        + f"; {len(todo)} runs of {int(cfg.total_frames)} env steps, "
         f"{int(cfg.jobs)} at a time (16 min on an idle 2-core CPU at the defaults)",
         flush=True,
     )
