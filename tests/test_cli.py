@@ -177,7 +177,10 @@ def test_reuse_without_checkpoint_and_bad_values_fail_clearly(tmp_path, cli):
         (["algo.buffer_size=16"], "smaller than algo.batch_size"),
         (["demos.sac_share=most"], "demos.sac_share must be auto or a number in [0, 1)"),
         (["stop_at_success=1.5"], "stop_at_success must be null or a success rate in [0, 1]"),
-        (["reward.disc.updates_per_sac_update=0"], "reward.disc.updates_per_sac_update must be > 0, got 0 (fractions allowed"),
+        (
+            ["reward.disc.updates_per_sac_update=0"],
+            "reward.disc.updates_per_sac_update must be > 0, got 0 (fractions allowed",
+        ),
     ]:
         code, err = cli("learn", *TINY, *args, f"hydra.run.dir={tmp_path / 'b'}")
         assert code == 2 and expect in err, (args, code, err[-2000:])

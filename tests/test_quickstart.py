@@ -120,3 +120,36 @@ def test_a_failed_run_stops_the_others_and_names_its_log(tmp_path):
     assert not (out / "learn" / "summary.json").exists()  # phase 1 was stopped, not left running
     ps = subprocess.run(["ps", "-eo", "args"], capture_output=True, text=True, check=True).stdout
     assert str(out) not in ps
+
+
+def test_the_record_printed_under_every_summary_is_the_committed_runs():
+    """conf/quickstart.yaml `record` (the spread over seeds that each summary prints) matches the committed
+    summary.json of each seed, to two decimals; a seed's record lives under results/quickstart/ or
+    results/first_command/."""
+    import json
+
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from drs_torchrl.apps.quickstart import spread_text
+    from drs_torchrl.config_dir import conf_dir
+
+    with initialize_config_dir(config_dir=conf_dir(), version_base=None):
+        record = OmegaConf.to_container(compose("quickstart").record)
+    assert set(record) >= {"drs", "sparse", "semi_sparse"} and len(record["drs"]) >= 3
+    for name, by_seed in record.items():
+        for seed, value in by_seed.items():
+            found = [
+                p
+                for p in (
+                    ROOT / "results" / "quickstart" / f"seed{seed}",
+                    ROOT / "results" / "first_command" / f"seed{seed}",
+                )
+                if (p / "summary.json").is_file() and name in json.loads((p / "summary.json").read_text())["phase2"]
+            ]
+            assert found, (name, seed)
+            got = json.loads((found[0] / "summary.json").read_text())["phase2"][name]["success_last3"]
+            assert round(got, 2) == value, (name, seed, got, value)
+    text = "\n".join(spread_text(record))
+    hits = sum(v >= 0.9 for v in record["drs"].values())
+    assert f"DrS (frozen, reused) >= 0.9 in {hits} of {len(record['drs'])}" in text

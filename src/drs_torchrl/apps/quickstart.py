@@ -32,7 +32,7 @@ from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from drs_torchrl.console import UserError, console_script
 from drs_torchrl.rundir import LOCK_NAME, lock_run_dir
@@ -273,7 +273,28 @@ def first_solved(run_dir: Path) -> int | None:
     return next((int(f) for f, s in zip(frames, success) if s >= SUCCESS_BAR), None)
 
 
-def summarize(jobs: list[Job], out: Path, wall_s: float | None) -> dict:
+def spread_text(record: dict) -> list[str]:
+    """The lines that set one seed against this command's committed record on other seeds (``record`` of
+    conf/quickstart.yaml: per reward, greedy success on the test map by seed)."""
+    if not record:
+        return []
+    parts = []
+    for name, by_seed in record.items():
+        if name == "files" or not by_seed:
+            continue
+        values = [float(v) for v in by_seed.values()]
+        hits = sum(v >= SUCCESS_BAR for v in values)
+        parts.append(
+            f"{LABELS.get(name, name)} >= {SUCCESS_BAR} in {hits} of {len(values)} "
+            f"({', '.join(f'{v:.2f}' for v in values)}; seeds {', '.join(str(k) for k in by_seed)})"
+        )
+    return [
+        "One seed says little. This command on other seeds (conf/quickstart.yaml `record`, each a committed",
+        "summary.json):",
+    ] + [f"  {p}" for p in parts]
+
+
+def summarize(jobs: list[Job], out: Path, wall_s: float | None, record: dict | None = None) -> dict:
     """What the quickstart learned and how the reused reward compared: ``summary.json`` and ``summary.md``."""
     learn = json.loads((out / "learn" / "summary.json").read_text())
     row = last_row(out / "learn") or {}
@@ -304,6 +325,7 @@ def summarize(jobs: list[Job], out: Path, wall_s: float | None) -> dict:
         },
         "phase2": phase2,
         "figure": str(out / "quickstart.png"),
+        "record": record or {},
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     (out / "summary.md").write_text(summary_text(summary, out) + "\n")
@@ -352,9 +374,8 @@ def summary_text(s: dict, out: Path) -> str:
             f"Semi-sparse is DrS's own constant part without the learned term ({p2['semi_sparse']['success_last3']:.2f}); "
             f"on this maze the learned term has not been shown to add to it (results/maze/README.md)."
         )
+    lines += spread_text(s.get("record", {}))
     lines += [
-        "One seed says little: over seeds 0, 1, 2 of this command DrS reached 0.96, 0.99 and 0.00 (the seed-2 reward",
-        "held its agent away from the goal), sparse 0.35, 0.00, 0.00 (results/quickstart/README.md).",
         "",
         f"Files: {out}/quickstart.png (figure), summary.json, summary.md; {out}/learn/reward.pt (the reward);",
         f"       each run's train.csv and TensorBoard (tb/) under {out}/<run>/, logs under {out}/logs/.",
@@ -445,7 +466,8 @@ def main(cfg: DictConfig) -> None:
         )
         sys.exit(128 + int(sig))
     plot(jobs, out)
-    summary = summarize(jobs, out, round(time.perf_counter() - t0, 1) if todo else None)
+    record = OmegaConf.to_container(cfg.get("record") or {})
+    summary = summarize(jobs, out, round(time.perf_counter() - t0, 1) if todo else None, record)
     print("\n" + summary_text(summary, out), flush=True)
 
 
