@@ -125,7 +125,7 @@ def test_a_failed_run_stops_the_others_and_names_its_log(tmp_path):
 def test_the_record_printed_under_every_summary_is_the_committed_runs():
     """conf/quickstart.yaml `record` (the spread over seeds that each summary prints) matches the committed
     summary.json of each seed, to two decimals; a seed's record lives under results/quickstart/ or
-    results/first_command/."""
+    results/first_command/ (selection/: seeds 3-4, test/: seeds 5-9)."""
     import json
 
     from hydra import compose, initialize_config_dir
@@ -143,7 +143,8 @@ def test_the_record_printed_under_every_summary_is_the_committed_runs():
                 p
                 for p in (
                     ROOT / "results" / "quickstart" / f"seed{seed}",
-                    ROOT / "results" / "first_command" / f"seed{seed}",
+                    ROOT / "results" / "first_command" / "selection" / f"seed{seed}",
+                    ROOT / "results" / "first_command" / "test" / f"seed{seed}",
                 )
                 if (p / "summary.json").is_file() and name in json.loads((p / "summary.json").read_text())["phase2"]
             ]
