@@ -284,9 +284,13 @@ def spread_text(record: dict) -> list[str]:
             continue
         values = [float(v) for v in by_seed.values()]
         hits = sum(v >= SUCCESS_BAR for v in values)
+        seeds = [int(k) for k in by_seed]
+        span = (
+            f"{seeds[0]}-{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1)) else ", ".join(map(str, seeds))
+        )
         parts.append(
             f"{LABELS.get(name, name)} >= {SUCCESS_BAR} in {hits} of {len(values)} "
-            f"({', '.join(f'{v:.2f}' for v in values)}; seeds {', '.join(str(k) for k in by_seed)})"
+            f"(seeds {span}: {', '.join(f'{v:.2f}' for v in values)})"
         )
     return [
         "One seed says little. This command on other seeds (conf/quickstart.yaml `record`, each a committed",
