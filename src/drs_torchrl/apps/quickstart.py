@@ -280,7 +280,7 @@ def spread_text(record: dict) -> list[str]:
         return []
     parts = []
     for name, by_seed in record.items():
-        if name == "files" or not by_seed:
+        if not by_seed:
             continue
         values = [float(v) for v in by_seed.values()]
         hits = sum(v >= SUCCESS_BAR for v in values)
@@ -448,7 +448,7 @@ def main(cfg: DictConfig) -> None:
         "  phase 1 learns the reward on the train map; phase 2 reuses it on the test map"
         + (f" beside {', '.join(LABELS.get(b, b) for b in cfg.baselines)}" if cfg.baselines else "")
         + f"; {len(todo)} runs of {int(cfg.total_frames)} env steps, "
-        f"{int(cfg.jobs)} at a time (16 min on an idle 2-core CPU at the defaults)",
+        f"{int(cfg.jobs)} at a time (7-16 min on an idle 2-core CPU at the defaults)",
         flush=True,
     )
     for name in kept:
