@@ -88,6 +88,27 @@ def test_splits_build_step_and_label_stages(family_envs):
         assert envs["train"].observation_spec["observation"].shape == envs["test"].observation_spec["observation"].shape
 
 
+@pytest.mark.parametrize("name", [n for n in RUNNABLE if get_family(n).extra.get("observation_groups")])
+def test_named_observation_columns_hold_what_their_names_say(name):
+    """A family's ``observation_groups`` (what ``drs-probe --swap-with`` reports) tile the observation and
+    the joint-velocity and TCP-pose columns read back the simulator's values."""
+    fam = get_family(name)
+    layout = fam.extra["observation_groups"]
+    env = make_family_env(fam, "test", seed=0)
+    try:
+        ranges = sorted(layout.values())
+        assert ranges[0][0] == 0 and all(a[1] == b[0] for a, b in zip(ranges, ranges[1:]))
+        assert ranges[-1][1] == env.observation_spec["observation"].shape[-1]
+        td = env.rand_step(env.reset())
+        obs, u = td["next", "observation"].reshape(-1), env.base_env.unwrapped
+        s, e = layout["joint velocities"]
+        torch.testing.assert_close(obs[s:e], u.agent.robot.get_qvel().reshape(-1).to(obs.dtype))
+        s, e = layout["TCP pose"]
+        torch.testing.assert_close(obs[s:e], u.agent.tcp.pose.raw_pose.reshape(-1).to(obs.dtype))
+    finally:
+        env.close()
+
+
 def test_every_episode_draws_a_variant_of_the_split(family_envs):
     fam, envs = family_envs
     for split, env in envs.items():

@@ -7,7 +7,7 @@
 from drs_torchrl.tasks import TaskFamily, register_family
 
 # column ranges of ManiSkill's PickCube state observation with the Panda (42 numbers): the agent's qpos and
-# qvel, then the task's extras in ManiSkill's order; names the inputs in bin/probe_reward.py --swap-with
+# qvel, then the task's extras in ManiSkill's order; names the inputs in ``drs-probe --swap-with``
 PANDA_PICK_OBSERVATION_GROUPS = {
     "arm joint positions": (0, 7),
     "finger joint positions": (7, 9),

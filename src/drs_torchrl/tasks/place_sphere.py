@@ -8,6 +8,19 @@ Three stages from PlaceSphere's own ``evaluate``: ``is_obj_grasped``, ``is_obj_o
 
 from drs_torchrl.tasks import TaskFamily, register_family
 
+# column ranges of PlaceSphere's state observation with the Panda (39 numbers): qpos, qvel, then the task's
+# extras in ManiSkill's order; names the inputs in ``drs-probe --swap-with`` (checked in tests/test_families.py)
+PLACE_SPHERE_OBSERVATION_GROUPS = {
+    "arm joint positions": (0, 7),
+    "finger joint positions": (7, 9),
+    "joint velocities": (9, 18),
+    "is_grasped": (18, 19),
+    "TCP pose": (19, 26),
+    "bin position": (26, 29),
+    "sphere pose": (29, 36),
+    "TCP to sphere": (36, 39),
+}
+
 register_family(
     TaskFamily(
         name="place_sphere",
@@ -24,6 +37,9 @@ register_family(
         train_variants=("r2cm", "r1_5cm"),
         test_variants=("r1_75cm", "r1_25cm"),
         pooled=True,
-        extra={"demo_solver": "mani_skill.examples.motionplanning.panda.solutions.place_sphere:solve"},
+        extra={
+            "demo_solver": "mani_skill.examples.motionplanning.panda.solutions.place_sphere:solve",
+            "observation_groups": PLACE_SPHERE_OBSERVATION_GROUPS,
+        },
     )
 )

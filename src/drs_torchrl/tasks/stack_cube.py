@@ -8,6 +8,20 @@ Three stages from StackCube's own ``evaluate``: ``is_cubeA_grasped``, ``is_cubeA
 
 from drs_torchrl.tasks import TaskFamily, register_family
 
+# column ranges of StackCube's state observation with the Panda (48 numbers): qpos, qvel, then the task's
+# extras in ManiSkill's order; names the inputs in ``drs-probe --swap-with`` (checked in tests/test_families.py)
+STACK_OBSERVATION_GROUPS = {
+    "arm joint positions": (0, 7),
+    "finger joint positions": (7, 9),
+    "joint velocities": (9, 18),
+    "TCP pose": (18, 25),
+    "cube A pose": (25, 32),
+    "cube B pose": (32, 39),
+    "TCP to cube A": (39, 42),
+    "TCP to cube B": (42, 45),
+    "cube A to cube B": (45, 48),
+}
+
 
 def _pair(a, b):
     return {"cube_a_half_size": a, "cube_b_half_size": b}
@@ -29,6 +43,9 @@ register_family(
         train_variants=("a2cm_b2cm", "a1_75cm_b2_5cm"),
         test_variants=("a2_25cm_b2_25cm", "a1_5cm_b2_25cm"),
         pooled=True,
-        extra={"demo_solver": "mani_skill.examples.motionplanning.panda.solutions.stack_cube:solve"},
+        extra={
+            "demo_solver": "mani_skill.examples.motionplanning.panda.solutions.stack_cube:solve",
+            "observation_groups": STACK_OBSERVATION_GROUPS,
+        },
     )
 )
