@@ -132,6 +132,18 @@ class TaskFamily:
         return {**self.variants[variant], **(overrides or {})}
 
 
+def column_groups(*sizes: tuple[str, int]) -> dict[str, tuple[int, int]]:
+    """Named column ranges of a flat observation from the sizes of its parts, in order (``drs-probe --swap-with``)."""
+    groups, start = {}, 0
+    for name, size in sizes:
+        groups[name] = (start, start + size)
+        start += size
+    return groups
+
+
+# a ManiSkill state observation with the Panda starts with its qpos (7 arm + 2 finger joints) and qvel (9)
+PANDA_STATE = (("arm joint positions", 7), ("finger joint positions", 2), ("joint velocities", 9))
+
 _FAMILIES: dict[str, TaskFamily] = {}
 
 

@@ -4,30 +4,28 @@
 ``env.split=test`` from the held-out ones (1.5 and 1.75 cm); a variant name fixes one size.
 """
 
-from drs_torchrl.tasks import TaskFamily, register_family
+from drs_torchrl.tasks import PANDA_STATE, TaskFamily, column_groups, register_family
 
 # column ranges of ManiSkill's PickCube state observation with the Panda (42 numbers): the agent's qpos and
-# qvel, then the task's extras in ManiSkill's order; names the inputs in ``drs-probe --swap-with``
-PANDA_PICK_OBSERVATION_GROUPS = {
-    "arm joint positions": (0, 7),
-    "finger joint positions": (7, 9),
-    "joint velocities": (9, 18),
-    "is_grasped": (18, 19),
-    "TCP pose": (19, 26),
-    "goal position": (26, 29),
-    "object pose": (29, 36),
-    "TCP to object": (36, 39),
-    "object to goal": (39, 42),
-}
+# qvel, then the task's extras in ManiSkill's order
+PANDA_PICK_OBSERVATION_GROUPS = column_groups(
+    *PANDA_STATE,
+    ("is_grasped", 1),
+    ("TCP pose", 7),
+    ("goal position", 3),
+    ("object pose", 7),
+    ("TCP to object", 3),
+    ("object to goal", 3),
+)
 # and of PickObjectEnv.task_observation() (19 numbers, positions in the workspace frame)
-PICK_TASK_OBSERVATION_GROUPS = {
-    "object position": (0, 3),
-    "object orientation": (3, 7),
-    "goal position": (7, 10),
-    "TCP position": (10, 13),
-    "TCP to object": (13, 16),
-    "object to goal": (16, 19),
-}
+PICK_TASK_OBSERVATION_GROUPS = column_groups(
+    ("object position", 3),
+    ("object orientation", 4),
+    ("goal position", 3),
+    ("TCP position", 3),
+    ("TCP to object", 3),
+    ("object to goal", 3),
+)
 
 register_family(
     TaskFamily(

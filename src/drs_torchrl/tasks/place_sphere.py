@@ -6,20 +6,18 @@ Three stages from PlaceSphere's own ``evaluate``: ``is_obj_grasped``, ``is_obj_o
 1.25 cm, drawn per episode.
 """
 
-from drs_torchrl.tasks import TaskFamily, register_family
+from drs_torchrl.tasks import PANDA_STATE, TaskFamily, column_groups, register_family
 
 # column ranges of PlaceSphere's state observation with the Panda (39 numbers): qpos, qvel, then the task's
 # extras in ManiSkill's order; names the inputs in ``drs-probe --swap-with`` (checked in tests/test_families.py)
-PLACE_SPHERE_OBSERVATION_GROUPS = {
-    "arm joint positions": (0, 7),
-    "finger joint positions": (7, 9),
-    "joint velocities": (9, 18),
-    "is_grasped": (18, 19),
-    "TCP pose": (19, 26),
-    "bin position": (26, 29),
-    "sphere pose": (29, 36),
-    "TCP to sphere": (36, 39),
-}
+PLACE_SPHERE_OBSERVATION_GROUPS = column_groups(
+    *PANDA_STATE,
+    ("is_grasped", 1),
+    ("TCP pose", 7),
+    ("bin position", 3),
+    ("sphere pose", 7),
+    ("TCP to sphere", 3),
+)
 
 register_family(
     TaskFamily(

@@ -6,21 +6,19 @@ Three stages from StackCube's own ``evaluate``: ``is_cubeA_grasped``, ``is_cubeA
 2.25/2.25 cm and 1.5/2.25 cm (half sizes), drawn per episode.
 """
 
-from drs_torchrl.tasks import TaskFamily, register_family
+from drs_torchrl.tasks import PANDA_STATE, TaskFamily, column_groups, register_family
 
 # column ranges of StackCube's state observation with the Panda (48 numbers): qpos, qvel, then the task's
 # extras in ManiSkill's order; names the inputs in ``drs-probe --swap-with`` (checked in tests/test_families.py)
-STACK_OBSERVATION_GROUPS = {
-    "arm joint positions": (0, 7),
-    "finger joint positions": (7, 9),
-    "joint velocities": (9, 18),
-    "TCP pose": (18, 25),
-    "cube A pose": (25, 32),
-    "cube B pose": (32, 39),
-    "TCP to cube A": (39, 42),
-    "TCP to cube B": (42, 45),
-    "cube A to cube B": (45, 48),
-}
+STACK_OBSERVATION_GROUPS = column_groups(
+    *PANDA_STATE,
+    ("TCP pose", 7),
+    ("cube A pose", 7),
+    ("cube B pose", 7),
+    ("TCP to cube A", 3),
+    ("TCP to cube B", 3),
+    ("cube A to cube B", 3),
+)
 
 
 def _pair(a, b):
