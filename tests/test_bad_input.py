@@ -9,22 +9,11 @@ from drs_torchrl.updaters.base import NonFiniteError
 from drs_torchrl.apps.build import Run
 from drs_torchrl.checkpoint import TrainingStateError
 from drs_torchrl.transforms import DrSReward
+from budgets import tiny
 
 pytestmark = pytest.mark.sim
 
-TINY = [
-    "total_frames=1024",
-    "algo.learning_starts=128",
-    "algo.batch_size=32",
-    "algo.hidden=[16,16]",
-    "logger.interval=128",
-    "eval.interval=100000",
-    "eval.episodes=0",
-    "checkpoint_interval=256",
-    "logger.progress_bar=false",
-    "logger.tensorboard=false",
-    "reward.disc.batch_size=16",
-]
+TINY = tiny(frames=1024, eval_episodes=0, checkpoint_every=256)
 
 
 def cfg(*extra):

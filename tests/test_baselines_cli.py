@@ -13,26 +13,11 @@ import pytest
 import torch
 
 from drs_torchrl.transforms import ClassifierReward, load_reward
+from budgets import HALF_CHEETAH, tiny
 
 pytestmark = [pytest.mark.sim, pytest.mark.slow]
 BIN = Path(sys.executable).parent
-TINY = [
-    "env=half_cheetah",
-    "env.max_episode_steps=100",
-    "env.variant_overrides.success_return=1.0",
-    "total_frames=384",
-    "algo.learning_starts=128",
-    "algo.batch_size=32",
-    "algo.hidden=[32,32]",
-    "reward.disc.batch_size=16",
-    "logger.interval=128",
-    "eval.interval=100000",
-    "eval.episodes=1",
-    "checkpoint_interval=100000",
-    "logger.progress_bar=false",
-    "logger.tensorboard=false",
-    "algo.collector._target_=torchrl.collectors.Collector",
-]
+TINY = [*HALF_CHEETAH, *tiny(frames=384, hidden=32), "algo.collector._target_=torchrl.collectors.Collector"]
 
 
 def _run(cmd, *args, cwd):

@@ -11,22 +11,12 @@ import pytest
 import torch
 
 from drs_torchrl.transforms import DrSReward
+from budgets import small
 
 pytestmark = [pytest.mark.sim, pytest.mark.slow]
 
 BIN = Path(sys.executable).parent
-TINY = [
-    "total_frames=640",
-    "algo.learning_starts=256",
-    "algo.batch_size=64",
-    "algo.hidden=[32,32]",
-    "logger.interval=256",
-    "eval.interval=512",
-    "eval.episodes=1",
-    "checkpoint_interval=512",
-    "logger.progress_bar=false",
-    "logger.tensorboard=false",
-]
+TINY = small(disc_batch=None, eval_every=512, checkpoint_every=512)
 DISC = ["reward.disc.batch_size=32"]
 
 

@@ -9,22 +9,12 @@ import time
 from pathlib import Path
 
 import pytest
+from budgets import small
 
 pytestmark = [pytest.mark.sim, pytest.mark.slow]
 
 BIN = Path(sys.executable).parent
-TINY = [
-    "total_frames=640",
-    "algo.learning_starts=256",
-    "algo.batch_size=64",
-    "algo.hidden=[32,32]",
-    "reward.disc.batch_size=32",
-    "logger.interval=256",
-    "eval.interval=512",
-    "eval.episodes=1",
-    "checkpoint_interval=512",
-    "logger.tensorboard=false",
-]
+TINY = small(eval_every=512, checkpoint_every=512, progress_bar=None)
 LIBRARY_CHATTER = (
     "Requested to use render device",
     "No initial pose set",

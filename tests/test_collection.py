@@ -9,19 +9,14 @@ from hydra import compose, initialize_config_dir
 
 from drs_torchrl.apps.cli import conf_dir
 from drs_torchrl.apps.build import Run
+from budgets import small
 
 pytestmark = [pytest.mark.sim]
 
 BACKGROUND = "algo.collector._target_=torchrl.collectors.AsyncCollector"
-TINY = [
-    "algo.batch_size=64",
-    "algo.hidden=[32,32]",
-    "reward.disc.batch_size=32",
-    "eval.episodes=0",
-    "logger.progress_bar=false",
-    "logger.tensorboard=false",
-    "checkpoint_interval=1000000",
-]
+TINY = small(
+    frames=None, learning_starts=None, log_every=None, eval_every=None, eval_episodes=0, checkpoint_every=1_000_000
+)
 
 
 def config(*overrides):

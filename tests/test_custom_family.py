@@ -9,22 +9,11 @@ from omegaconf import OmegaConf
 
 from drs_torchrl.tasks import family_from_config, get_family
 from drs_torchrl.transforms import DrSReward
+from budgets import tiny
 
 BIN = Path(sys.executable).parent
 POKE = ["env=custom", "env.family=poke_cube_test", "env.env_id=PokeCube-v1", "env.stage_keys=[is_peg_grasped,success]"]
-TINY = [
-    "total_frames=320",
-    "algo.learning_starts=128",
-    "algo.batch_size=32",
-    "algo.hidden=[16,16]",
-    "reward.disc.batch_size=16",
-    "logger.interval=128",
-    "eval.interval=100000",
-    "eval.episodes=1",
-    "checkpoint_interval=100000",
-    "logger.tensorboard=false",
-    "logger.progress_bar=false",
-]
+TINY = tiny()
 
 
 def env_cfg(**over):

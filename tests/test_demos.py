@@ -8,6 +8,7 @@ from tensordict import TensorDict
 
 from drs_torchrl.data import StageBuffers
 from drs_torchrl.demos import DemoError, check_demos, load_demos, record_demos, save_demos
+from budgets import tiny
 
 
 @pytest.fixture(scope="module")
@@ -372,17 +373,7 @@ def test_a_stage_ablation_relabels_the_demonstrations_and_their_previous_states(
             f"demos.path={demo_dir}",
             "demos.sac_share=0.25",
             "demos.stage_buffers=false",
-            "total_frames=256",
-            "algo.learning_starts=128",
-            "algo.batch_size=32",
-            "algo.hidden=[32,32]",
-            "reward.disc.batch_size=16",
-            "logger.interval=128",
-            "eval.interval=100000",
-            "eval.episodes=1",
-            "checkpoint_interval=100000",
-            "logger.progress_bar=false",
-            "logger.tensorboard=false",
+            *tiny(frames=256, hidden=32),
             "algo.collector._target_=torchrl.collectors.Collector",
         ]
         cfg = compose("learn", overrides=cfg_overrides)

@@ -7,24 +7,12 @@ from pathlib import Path
 
 import imageio.v3 as iio
 import pytest
+from budgets import tiny
 
 pytestmark = [pytest.mark.sim, pytest.mark.slow]
 
 BIN = Path(sys.executable).parent
-TINY = [
-    "total_frames=320",
-    "algo.learning_starts=128",
-    "algo.batch_size=32",
-    "algo.hidden=[16,16]",
-    "reward.disc.batch_size=16",
-    "logger.interval=128",
-    "eval.interval=100000",
-    "eval.episodes=0",
-    "checkpoint_interval=100000",
-    "logger.tensorboard=false",
-    "logger.progress_bar=false",
-    "env.max_episode_steps=20",
-]
+TINY = [*tiny(eval_episodes=0), "env.max_episode_steps=20"]
 
 
 def run(cmd, *args, cwd):

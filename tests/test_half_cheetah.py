@@ -19,6 +19,7 @@ from drs_torchrl.envs.factory import make_family_env
 from drs_torchrl.envs.gym_family import GymFamilyError
 from drs_torchrl.tasks import get_family
 from drs_torchrl.transforms import DrSReward
+from budgets import HALF_CHEETAH, tiny
 
 torch.set_num_threads(1)
 BIN = Path(sys.executable).parent
@@ -109,22 +110,7 @@ def _run(cmd, *args, cwd):
     )
 
 
-TINY = [
-    "env=half_cheetah",
-    "env.max_episode_steps=100",
-    "env.variant_overrides.success_return=1.0",
-    "total_frames=384",
-    "algo.learning_starts=128",
-    "algo.batch_size=32",
-    "algo.hidden=[32,32]",
-    "reward.disc.batch_size=16",
-    "logger.interval=128",
-    "eval.interval=100000",
-    "eval.episodes=1",
-    "checkpoint_interval=100000",
-    "logger.progress_bar=false",
-    "logger.tensorboard=false",
-]
+TINY = [*HALF_CHEETAH, *tiny(frames=384, hidden=32)]
 
 
 @pytest.mark.slow

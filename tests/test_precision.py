@@ -11,6 +11,7 @@ from torchrl.modules import MLP
 from drs_torchrl.precision import OutputFloat32, PrecisionError, native_bf16, resolve_precision
 from drs_torchrl.apps.cli import conf_dir
 from drs_torchrl.apps.build import Run
+from budgets import small
 
 
 def _cpuinfo_flags() -> set[str]:
@@ -48,18 +49,7 @@ def test_output_cast_adds_no_parameters():
         assert cast(x).dtype == torch.float32
 
 
-TINY = [
-    "total_frames=640",
-    "algo.learning_starts=256",
-    "algo.batch_size=64",
-    "algo.hidden=[32,32]",
-    "reward.disc.batch_size=32",
-    "eval.episodes=0",
-    "logger.progress_bar=false",
-    "logger.tensorboard=false",
-    "checkpoint_interval=1000000",
-    "logger.interval=256",
-]
+TINY = small(eval_every=None, eval_episodes=0, checkpoint_every=1_000_000)
 
 
 def _trainer(tmp_path, precision):

@@ -13,23 +13,12 @@ from pathlib import Path
 import pytest
 import torch
 from omegaconf import OmegaConf
+from budgets import small
 
 pytestmark = [pytest.mark.sim, pytest.mark.slow]
 
 BIN = Path(sys.executable).parent
-TINY = [
-    "algo.learning_starts=256",
-    "algo.batch_size=64",
-    "algo.hidden=[32,32]",
-    "logger.interval=256",
-    "eval.interval=100000",
-    "eval.episodes=1",
-    "checkpoint_interval=512",
-    "logger.progress_bar=false",
-    "reward.disc.batch_size=32",
-    "logger.tensorboard=false",
-    "+env.variant_overrides.goal_thresh=0.08",
-]
+TINY = [*small(frames=None, checkpoint_every=512), "+env.variant_overrides.goal_thresh=0.08"]
 
 
 def _wait_for_state(run_dir: Path, frames: int, proc, timeout=240):

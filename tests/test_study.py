@@ -11,6 +11,7 @@ import pytest
 import yaml
 
 from drs_torchrl.apps.study import StudyError, load_study, run_state
+from budgets import tiny
 
 BIN = Path(sys.executable).parent
 
@@ -119,25 +120,12 @@ def test_run_state_tells_finished_interrupted_and_broken_runs_apart(tmp_path):
 @pytest.mark.sim
 @pytest.mark.slow
 def test_a_study_runs_learn_then_reuse_and_a_second_call_skips_both(tmp_path):
-    tiny = [
-        "total_frames=320",
-        "algo.learning_starts=128",
-        "algo.batch_size=32",
-        "algo.hidden=[16,16]",
-        "reward.disc.batch_size=16",
-        "logger.interval=128",
-        "eval.interval=100000",
-        "eval.episodes=0",
-        "checkpoint_interval=100000",
-        "logger.tensorboard=false",
-        "logger.progress_bar=false",
-        "+env.variant_overrides.goal_thresh=0.08",
-    ]
+    small = [*tiny(eval_episodes=0), "+env.variant_overrides.goal_thresh=0.08"]
     f = write(
         tmp_path,
         {
             "root": str(tmp_path / "runs"),
-            "common": tiny,
+            "common": small,
             "runs": [
                 {"name": "learn", "args": ["seed=1"]},
                 {
