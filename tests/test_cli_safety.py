@@ -248,7 +248,7 @@ def test_drs_eval_refuses_a_video_path_that_is_a_file_before_any_episode(tmp_pat
 
 
 def test_drs_demos_never_replaces_a_folder_that_is_not_demonstrations(tmp_path, capsys):
-    from drs_torchrl.demos import main
+    from drs_torchrl.apps.demos import main
 
     (tmp_path / "mine.txt").write_text("keep me")
     assert main(["--num", "1", "--out", str(tmp_path)]) == 2

@@ -115,7 +115,8 @@ def maniskill_h5(tmp_path_factory):
 def test_maniskill_h5_converts_to_demos_matching_the_recording(maniskill_h5, pick_cube, tmp_path):
     import h5py
 
-    from drs_torchrl.demos import load_maniskill_h5, main
+    from drs_torchrl.apps.demos import main
+    from drs_torchrl.demos import load_maniskill_h5
 
     states, meta = load_maniskill_h5(maniskill_h5, pick_cube, "cube_2cm", progress=False)
     r = meta["replay"]
@@ -149,7 +150,8 @@ def test_maniskill_h5_converts_to_demos_matching_the_recording(maniskill_h5, pic
 def test_maniskill_h5_errors_name_the_problem(maniskill_h5, pick_cube, tmp_path, capsys):
     import shutil
 
-    from drs_torchrl.demos import load_maniskill_h5, main
+    from drs_torchrl.apps.demos import main
+    from drs_torchrl.demos import load_maniskill_h5
     from drs_torchrl.tasks import get_family
 
     with pytest.raises(DemoError, match="no such trajectory file"):
@@ -251,7 +253,8 @@ def test_a_policy_records_demos_of_its_successful_episodes(tmp_path):
 
 
 def test_policy_demo_errors_name_the_problem(tmp_path, capsys):
-    from drs_torchrl.demos import main, record_policy_demos
+    from drs_torchrl.apps.demos import main
+    from drs_torchrl.demos import record_policy_demos
     from drs_torchrl.models import PolicyCheckpointError
 
     assert main(["--from-policy", str(tmp_path / "nowhere")]) == 2

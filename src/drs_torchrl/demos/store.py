@@ -1,0 +1,198 @@
+"""The demonstrations format: save, load, check against a task, relabel for a stage ablation.
+
+On-disk format (a directory, e.g. ``demos/pick_cube-cube_2cm.demos``):
+
+* ``states/``: a memory-mapped TensorDict (``TensorDict.load_memmap``) of batch ``[S]``, one row per
+  state ``s'`` reached by the demonstrator, episodes concatenated in order. Entries:
+  ``observation`` (float, the env's flat state), ``stage_indicators`` (float, monotone),
+  ``stage`` (int64), every indicator of the family (bool), ``episode`` and ``step`` (int64); from the
+  planner and from a policy also ``action`` (the action that led to the row's state) and ``state`` (a
+  sub-TensorDict of the reward inputs and ``stage`` of the state it was taken in).
+* ``meta.json``: ``format``, ``version``, ``family``, ``env_id``, ``variant``, ``variant_kwargs``,
+  ``stage_keys``, ``shapes`` (entry -> trailing size), ``episodes``, ``lengths``, ``seeds``,
+  ``solver`` (:func:`demo_meta`); from the planner and from a policy ``actions`` (``control_mode``,
+  ``size``: whose controller the actions are for), from an ``.h5`` conversion ``replay``.
+
+Episodes are cut at their first successful state (training episodes terminate there).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import torch
+from tensordict import TensorDict
+
+from drs_torchrl.console import UserError
+from drs_torchrl.data.persistence import load_memmap_checked
+from drs_torchrl.rundir import check_writable, ensure_free, nbytes, space_errors
+from drs_torchrl.tasks import TaskFamily
+from drs_torchrl.transforms.stages import StageIndicator, monotone_indicators
+
+DEMO_FORMAT = "drs-torchrl/demos"
+DEMO_VERSION = 1
+
+
+class DemoError(UserError, ValueError):
+    """A demonstrations file that cannot be used for this task."""
+
+
+def cut_at_success(states: TensorDict, labeller, index: int) -> TensorDict | None:
+    """A demonstration's states cut at its first successful state and stage-labelled, with its
+    ``episode`` index and ``step`` numbers; ``None`` when it never succeeds."""
+    succ = states["success"].reshape(-1).nonzero()
+    if succ.numel() == 0:
+        return None
+    states = labeller(states[: int(succ[0]) + 1])
+    states.set("episode", torch.full((states.shape[0],), index, dtype=torch.long))
+    states.set("step", torch.arange(states.shape[0]))
+    return states
+
+
+def demo_meta(
+    family: TaskFamily, data: TensorDict, *, env_id, variant, variant_kwargs, lengths, seeds, solver, **extra
+) -> dict:
+    """The ``meta.json`` fields every source writes (module docstring), then the source's own ``extra``."""
+    keys = ("observation", "stage_indicators", family.task_observation_key)
+    return {
+        "format": DEMO_FORMAT,
+        "version": DEMO_VERSION,
+        "family": family.name,
+        "env_id": env_id,
+        "variant": variant,
+        "variant_kwargs": variant_kwargs,
+        "stage_keys": list(family.stage_keys),
+        "shapes": {k: int(data[k].shape[-1]) for k in keys if k},
+        "episodes": len(lengths),
+        "lengths": lengths,
+        "seeds": seeds,
+        "solver": solver,
+        **extra,
+    }
+
+
+def check_demos_out(path: str | Path) -> Path:
+    """``path`` if demonstrations can be written there: new, or demonstrations to replace (never another folder)."""
+    path = check_writable(path, "--out", folder=True)
+    if path.exists() and any(path.iterdir()) and not (path / "meta.json").is_file():
+        raise DemoError(
+            f"--out {path} is a folder that does not hold demonstrations; give a new path such as {path / 'my.demos'}"
+        )
+    return path
+
+
+def save_demos(states: TensorDict, meta: dict, path: str | Path) -> Path:
+    path = check_demos_out(path)
+    tmp = path.with_name(path.name + ".tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    ensure_free(tmp, nbytes(states), "the demonstrations")  # a memory map on a full disk faults (SIGBUS)
+    try:
+        with space_errors(tmp, "the demonstrations"):
+            tmp.mkdir(parents=True)
+            states.memmap(tmp / "states", num_threads=0)
+            (tmp / "meta.json").write_text(json.dumps(meta, indent=2))
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    if path.exists():
+        shutil.rmtree(path)
+    tmp.rename(path)
+    return path
+
+
+def load_demos(path: str | Path) -> tuple[list[TensorDict], dict]:
+    """Episodes (each a ``(T,)`` TensorDict of states) and the file's metadata."""
+    path = Path(path)
+    if not (path / "meta.json").is_file():
+        raise DemoError(f"{path} is not a drs-torchrl demonstrations directory (no meta.json); make one with drs-demos")
+    try:
+        meta = json.loads((path / "meta.json").read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise DemoError(
+            f"{path / 'meta.json'} is damaged ({exc.__class__.__name__}: {exc}); record the "
+            "demonstrations again with drs-demos"
+        ) from None
+    if not isinstance(meta, dict) or meta.get("format") != DEMO_FORMAT:
+        raise DemoError(f"{path}: unknown format {meta.get('format')!r}")
+    if int(meta.get("version", 99)) > DEMO_VERSION:
+        raise DemoError(
+            f"{path} has demo format version {meta['version']}, newer than this drs-torchrl reads ({DEMO_VERSION})"
+        )
+    try:
+        states = load_memmap_checked(path / "states").clone()
+    except Exception as exc:
+        raise DemoError(f"{path}: the states cannot be read (corrupt or truncated?): {exc}") from exc
+    missing = [k for k in ("family", "stage_keys", "shapes") if k not in meta]
+    if missing:
+        raise DemoError(
+            f"{path / 'meta.json'} is damaged: it lacks {missing}; record the demonstrations again with drs-demos"
+        )
+    ep = states["episode"]
+    bounds = torch.cat([torch.tensor([0]), (ep[1:] != ep[:-1]).nonzero().reshape(-1) + 1, torch.tensor([ep.numel()])])
+    episodes = [states[int(a) : int(b)] for a, b in zip(bounds[:-1], bounds[1:])]
+    return episodes, meta
+
+
+def restage_demos(episodes: list[TensorDict], meta: dict, stage_keys) -> tuple[list[TensorDict], dict]:
+    """The same demonstrations under a subset of their stage indicators (a stage ablation, ``env.stages``).
+
+    Every recorded indicator is kept per state, so each state's stage and monotone indicators are
+    recomputed from ``stage_keys``, and so are those of ``"state"`` (the state each action was taken
+    in: the previous row's; the first row's from its recorded indicators' columns of ``stage_keys``).
+    """
+    stage_keys, recorded = list(stage_keys), list(meta["stage_keys"])
+    missing = [k for k in stage_keys if k not in recorded]
+    if missing:
+        raise DemoError(f"the demonstrations record the stage indicators {recorded}; {missing} are not among them")
+    labeller = StageIndicator(stage_keys)
+    cols = [recorded.index(k) for k in stage_keys]
+    out = []
+    for ep in episodes:
+        ep = labeller(ep.clone())
+        prev = ep.get("state", None)
+        if prev is not None and "stage_indicators" in prev.keys():
+            head = monotone_indicators(prev.get("stage_indicators")[:1, cols])
+            prev.set("stage_indicators", torch.cat([head.to(torch.float32), ep.get("stage_indicators")[:-1]], 0))
+            if "stage" in prev.keys():
+                prev.set(
+                    "stage",
+                    torch.cat([head.sum(-1, keepdim=True), ep.get("stage")[:-1]], 0).to(prev.get("stage").dtype),
+                )
+        out.append(ep)
+    shapes = {**meta["shapes"], "stage_indicators": len(stage_keys)}
+    return out, {**meta, "stage_keys": stage_keys, "shapes": shapes}
+
+
+def variant_mismatches(meta: dict, overrides: dict | None) -> list[str]:
+    """The run's variant overrides (``env.variant_overrides``) that the demonstrations were recorded without.
+
+    Their stage labels follow the recording's task definition (e.g. a "placed" threshold of 2.5 cm,
+    where the run's is 5 cm), so such a mismatch relabels nothing and is worth a warning.
+    """
+    recorded = meta.get("variant_kwargs") or {}
+    variants = recorded.get("variants") if isinstance(recorded.get("variants"), list) else [recorded]
+    out = []
+    for key, value in (overrides or {}).items():
+        have = sorted({repr(v[key]) if key in v else "the variant's default" for v in variants})
+        if have != [repr(value)]:
+            out.append(f"{key}={value!r} (recorded with {', '.join(have)})")
+    return out
+
+
+def check_demos(meta: dict, family: TaskFamily, in_shapes: dict[str, int], path: str | Path = "") -> None:
+    """Raise :class:`DemoError` naming every way the demonstrations do not fit this task."""
+    problems = []
+    if meta["family"] != family.name:
+        problems.append(f"they are from family {meta['family']!r}, the run is family {family.name!r}")
+    if list(meta["stage_keys"]) != list(family.stage_keys):
+        problems.append(f"their stage indicators are {meta['stage_keys']}, the family's are {list(family.stage_keys)}")
+    for k, d in in_shapes.items():
+        have = meta["shapes"].get(k)
+        if have is None:
+            problems.append(f"they lack the reward input {k!r}")
+        elif int(have) != int(d):
+            problems.append(f"their {k!r} has size {have}, the env's has size {d}")
+    if problems:
+        raise DemoError(f"demonstrations {path} do not match the task: " + "; ".join(problems))
