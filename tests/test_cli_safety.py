@@ -256,6 +256,24 @@ def test_drs_demos_never_replaces_a_folder_that_is_not_demonstrations(tmp_path, 
     assert (tmp_path / "mine.txt").read_text() == "keep me"
 
 
+def test_drs_demos_replaces_demonstrations_only_when_told(tmp_path, capsys):
+    """An earlier recording at --out is refused before any recording (pass --force); the default --out never
+    replaces one: it takes the next free name."""
+    from drs_torchrl.apps.demos import main
+    from drs_torchrl.demos.store import free_demos_path
+
+    kept = tmp_path / "pc.demos"
+    kept.mkdir()
+    (kept / "meta.json").write_text('{"episodes": 1000}')
+    assert main(["--num", "1", "--out", str(kept)]) == 2
+    assert "already holds demonstrations; pass --force" in capsys.readouterr().err
+    assert (kept / "meta.json").read_text() == '{"episodes": 1000}'
+    assert free_demos_path(kept) == tmp_path / "pc-2.demos"
+    (tmp_path / "pc-2.demos").mkdir()
+    assert free_demos_path(kept) == tmp_path / "pc-3.demos"
+    assert free_demos_path(tmp_path / "new.demos") == tmp_path / "new.demos"
+
+
 def test_drs_bench_collector_workers_filter_library_messages(tmp_path):
     """The background collector's worker process applies the console filter (ManiSkill's render-device and
     initial-pose warnings came from there); DRS_LIBRARY_MESSAGES=1 shows them again."""
@@ -284,3 +302,16 @@ def test_drs_bench_collector_workers_filter_library_messages(tmp_path):
     assert "Requested to use render device" in loud.stdout + loud.stderr
     for msg in LIBRARY_CHATTER:
         assert msg not in quiet.stdout + quiet.stderr, msg
+
+
+def test_a_keyerror_while_training_is_a_bug_not_a_setting(tmp_path):
+    """While the run is built, the config layer's KeyError/ValueError name a bad setting (one line, exit 2); once
+    the first env step is taken, the same exception types come from a bug and keep their traceback."""
+    from omegaconf import OmegaConf
+
+    from drs_torchrl.apps.cli import _user_message
+
+    cfg = OmegaConf.create({})
+    assert _user_message(KeyError("unknown reward 'x'"), cfg, "learn", tmp_path) == "unknown reward 'x'"
+    assert _user_message(ValueError("bad shape"), cfg, "learn", tmp_path, training=True) is None
+    assert _user_message(KeyError(("next", "stage")), cfg, "learn", tmp_path, training=True) is None

@@ -35,6 +35,8 @@ def test_config_family_errors_name_the_fix():
         family_from_config(env_cfg(family="pick_cube"))
     with pytest.raises(ValueError, match="overlap.*env.stage_keys"):
         family_from_config(env_cfg(family="bad_split", train_variants=["default"], test_variants=["default"]))
+    with pytest.raises(ValueError, match="last stage indicator must be.*'success'.*env.stage_keys"):
+        family_from_config(env_cfg(family="no_success", stage_keys=["is_peg_grasped", "is_done"]))
     with pytest.raises(KeyError, match="no test variants"):
         family_from_config(env_cfg(family="no_test", test_variants=[])).split_variants("test")
 

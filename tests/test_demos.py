@@ -61,6 +61,9 @@ def test_bad_demo_directories(tmp_path):
     (tmp_path / "other" / "meta.json").write_text(json.dumps({"format": "something-else"}))
     with pytest.raises(DemoError, match="unknown format"):
         load_demos(tmp_path / "other")
+    (tmp_path / "other" / "meta.json").write_text("[]")
+    with pytest.raises(DemoError, match="unknown format 'a JSON list'"):
+        load_demos(tmp_path / "other")
 
 
 # ------------------------------------------------ ManiSkill trajectory files (.h5 + .json) -> demos

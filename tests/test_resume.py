@@ -183,6 +183,21 @@ def test_resume_config_applies_value_overrides_and_new_variant_parameters(tmp_pa
             resume_config(tmp_path, "learn", bad)
     with pytest.raises(ResumeError, match="resume it with drs-learn"):
         resume_config(tmp_path, "reuse", [])
+    # what the saved weights and buffers were made with stays; the same value is no change
+    OmegaConf.save(
+        OmegaConf.create({"phase": "learn", "reward": {"hidden": [32], "disc": {"window": 100}}}),
+        tmp_path / "config.yaml",
+    )
+    assert resume_config(tmp_path, "learn", ["reward.hidden=[32]"]).reward.hidden == [32]
+    for bad in (["reward.hidden=[64]"], ["reward.disc.window=200"]):
+        with pytest.raises(ResumeError, match=f"cannot change {bad[0].split('=')[0]} of a run being resumed"):
+            resume_config(tmp_path, "learn", bad)
+    OmegaConf.save(
+        OmegaConf.create(
+            {"phase": "learn", "total_frames": 100, "env": {"family": "turn_valve", "variant_overrides": {}}}
+        ),
+        tmp_path / "config.yaml",
+    )
     # a key added to the config since the run started (stop_at_success) is taken from this version's config
     newer = OmegaConf.create({"phase": "learn", "total_frames": 100, "stop_at_success": 0.8})
     assert resume_config(tmp_path, "learn", ["stop_at_success=0.8"], composed=newer).stop_at_success == 0.8

@@ -8,7 +8,7 @@ from tensordict import TensorDict
 from torchrl.data import Composite, LazyTensorStorage, ReplayBuffer, Unbounded
 
 from drs_torchrl.transforms import DrSReward, RewardCheckpointError
-from drs_torchrl.transforms.reward import CHECKPOINT_VERSION
+from drs_torchrl.transforms.reward import CHECKPOINT_VERSION, load_reward
 
 OBS = 7
 
@@ -132,6 +132,19 @@ def test_check_compatible_names_every_difference():
         r.check_compatible(spec(state=OBS, stage=1))
 
 
+def test_check_compatible_refuses_other_stages_of_the_same_count():
+    """A reward learned on [is_obj_placed, is_grasped, success] scores "beyond placed" with D_0: an env
+    staged by other indicators (a stage ablation) has as many stages but other meanings."""
+    keys = ["is_obj_placed", "is_grasped", "success"]
+    r = make_reward(metadata={"family": "pick_cube", "stage_keys": keys})
+    env = spec(observation=OBS, stage=1)
+    r.check_compatible(env, num_stages=3, family="pick_cube", stage_keys=keys)
+    with pytest.raises(RewardCheckpointError) as e:
+        r.check_compatible(env, num_stages=3, family="pick_cube", stage_keys=["is_grasped", "is_obj_placed", "success"])
+    assert "env.stages=[is_obj_placed,is_grasped,success]" in str(e.value)
+    make_reward(metadata={"family": "pick_cube"}).check_compatible(env, num_stages=3, stage_keys=["a", "b", "c"])
+
+
 def test_bad_checkpoint_files_get_clear_errors(tmp_path):
     with pytest.raises(RewardCheckpointError, match="does not exist"):
         DrSReward.from_checkpoint(tmp_path / "nope.pt")
@@ -148,6 +161,15 @@ def test_bad_checkpoint_files_get_clear_errors(tmp_path):
     torch.save(payload, tmp_path / "future.pt")
     with pytest.raises(RewardCheckpointError, match="newer"):
         DrSReward.from_checkpoint(tmp_path / "future.pt")
+    payload = torch.load(good, weights_only=True)
+    del payload["config"]["formula"]
+    torch.save(payload, tmp_path / "no_formula.pt")
+    with pytest.raises(RewardCheckpointError, match=r"damaged: its settings lack \['formula'\]"):
+        DrSReward.from_checkpoint(tmp_path / "no_formula.pt")
+    del payload["state_dict"]
+    torch.save(payload, tmp_path / "no_weights.pt")
+    with pytest.raises(RewardCheckpointError, match="damaged: it lacks its state_dict"):
+        load_reward(tmp_path / "no_weights.pt")
 
 
 def test_nan_weights_are_refused(tmp_path):

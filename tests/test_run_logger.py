@@ -40,6 +40,23 @@ def test_resume_drops_rows_logged_after_the_checkpoint(tmp_path):
     assert [r["step"] for r in rows(tmp_path / "train.csv")] == ["100", "200"]
 
 
+def test_a_failed_header_rewrite_keeps_the_logged_rows(tmp_path, monkeypatch):
+    """A new column rewrites the file: a full disk (or a kill) midway must not cost the run's history."""
+    log = WideCSVLogger("metrics", tmp_path)
+    log.log_metrics({"train/success": 0.1}, step=100)
+    real = csv.DictWriter.writerows
+
+    def disk_full(self, rows):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(csv.DictWriter, "writerows", disk_full)
+    with pytest.raises(OSError, match="No space"):
+        log.log_metrics({"train/success": 0.2, "train/disc_loss": 0.7}, step=200)
+    monkeypatch.setattr(csv.DictWriter, "writerows", real)
+    assert [r["success"] for r in rows(tmp_path / "train.csv")] == ["0.1"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["train.csv"]
+
+
 def test_run_logger_fans_out_to_tensorboard_and_keeps_nan_in_csv_only(tmp_path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 

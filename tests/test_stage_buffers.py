@@ -46,6 +46,21 @@ def test_filing_by_highest_stage_with_truncation():
     assert sb.stage_data(3)["observation"][:, 0].tolist() == [0.0, 1.0, 2.0, 3.0, 0.0, 1.0, 2.0, 3.0]
 
 
+def test_buffers_on_disk_can_share_a_scratch_dir_and_clean_up(tmp_path):
+    """reward.stage_buffer_scratch_dir: two runs (a sweep, or a resume beside the interrupted process) use one
+    folder; each writes its own memory maps there and removes them when it is gone."""
+    first, second = (StageBuffers(N, ["observation"], capacity=100, scratch_dir=str(tmp_path)) for _ in range(2))
+    for sb in (first, second):
+        assert sb.add_trajectory(traj([0, 1, 2, 3])) == 3
+    assert second.stage_data(3)["observation"][:, 0].tolist() == [0.0, 1.0, 2.0, 3.0]
+    assert len(list(tmp_path.iterdir())) == 2 and list(tmp_path.rglob("*.memmap"))
+    del first, second, sb
+    import gc
+
+    gc.collect()
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_positives_and_negatives_respect_stage_split():
     sb = StageBuffers(N, ["observation"], capacity=10_000, batch_size=64)
     for stages in ([0] * 5, [0, 1, 1], [1, 2, 2, 2], [1, 2, 3]):

@@ -46,6 +46,20 @@ class _WideCSVFiles:
         self.log_dir.mkdir(parents=True, exist_ok=True)
         self._columns: dict[str, list[str]] = {}
 
+    @staticmethod
+    def _rewrite(path: Path, cols: list[str], rows: list[dict]) -> None:
+        """Replace ``path`` by ``cols`` and ``rows`` at once (a kill or a full disk midway keeps the old file)."""
+        tmp = path.with_suffix(".csv.tmp")
+        try:
+            with tmp.open("w", newline="") as f:
+                w = csv.DictWriter(f, fieldnames=cols)
+                w.writeheader()
+                w.writerows(rows)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+        tmp.replace(path)
+
     def truncate(self, step: int) -> None:
         """Drop rows logged after ``step`` in every stream (a run resumed from that step)."""
         for path in self.log_dir.glob("*.csv"):
@@ -53,14 +67,8 @@ class _WideCSVFiles:
                 reader = csv.DictReader(f)
                 cols = reader.fieldnames
                 rows = [r for r in reader if r.get("step") and float(r["step"]) <= step]
-            if cols is None:
-                continue
-            tmp = path.with_suffix(".csv.tmp")
-            with tmp.open("w", newline="") as f:
-                w = csv.DictWriter(f, fieldnames=cols)
-                w.writeheader()
-                w.writerows(rows)
-            tmp.replace(path)
+            if cols is not None:
+                self._rewrite(path, list(cols), rows)
 
     def write_row(self, stream: str, row: dict) -> None:
         path = self.log_dir / f"{stream}.csv"
@@ -78,10 +86,7 @@ class _WideCSVFiles:
             cols = cols + new
             with path.open() as f:
                 rows = list(csv.DictReader(f))
-            with path.open("w", newline="") as f:
-                w = csv.DictWriter(f, fieldnames=cols)
-                w.writeheader()
-                w.writerows(rows)
+            self._rewrite(path, cols, rows)
         self._columns[stream] = cols
         with path.open("a", newline="") as f:
             csv.DictWriter(f, fieldnames=cols).writerow(row)

@@ -93,6 +93,7 @@ class Run:
 
     def __init__(self, cfg: DictConfig, phase: str, run_dir: str | Path, *, resume: bool = False):
         self.env = self.eval_env = self.collector = self.logger = None
+        self.training = False  # from the first env step on, a KeyError or ValueError is a bug, not a setting
         try:
             self._build(cfg, phase, run_dir, resume)
         except BaseException:
@@ -490,6 +491,7 @@ class Run:
                 if self.collects_in_background and not self.env.is_closed:
                     self.env.close()  # its specs were all the run needed; the worker has its own simulator
             background = self.collector is not None and self.collects_in_background
+            self.training = True
             summary.update(
                 run_algorithm1(
                     self.collector if self.collector is not None else (),

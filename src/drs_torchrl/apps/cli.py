@@ -92,6 +92,23 @@ class ResumeError(UserError, ValueError):
     """``resume=RUN_DIR`` that cannot be honoured."""
 
 
+# settings that fix the shapes or the meaning of a run's saved state (network sizes, buffer capacities, the stages
+# and the reward's inputs): a resumed run keeps them (its weights and buffers were made with them)
+FIXED_ON_RESUME = (
+    "algo.hidden",
+    "algo.buffer_size",
+    "reward.hidden",
+    "reward.activation",
+    "reward.in_keys",
+    "reward.formula",
+    "reward.stage_buffer_size",
+    "reward.buffer_size",
+    "reward.disc.window",
+    "env.stages",
+    "env.task_observation",
+)
+
+
 def resume_config(run_dir: Path, phase: str, overrides: list[str], composed: DictConfig | None = None) -> DictConfig:
     """The saved config of ``run_dir`` with this invocation's value overrides applied on top
     (values as Hydra parsed them into ``composed``, when given)."""
@@ -122,6 +139,14 @@ def resume_config(run_dir: Path, phase: str, overrides: list[str], composed: Dic
             ):
                 raise ResumeError(f"override {key!r} does not exist in the config of {run_dir}")
         parsed = OmegaConf.select(composed, key) if composed is not None else yaml.safe_load(value)
+        was = OmegaConf.select(saved, key, default=None)
+        was = OmegaConf.to_container(was) if OmegaConf.is_config(was) else was
+        now = OmegaConf.to_container(parsed) if OmegaConf.is_config(parsed) else parsed
+        if key in FIXED_ON_RESUME and now != was:
+            raise ResumeError(
+                f"cannot change {key} of a run being resumed (its saved weights and buffers were made with "
+                f"{key}={was}); start a new run with {key}={value} instead"
+            )
         OmegaConf.update(saved, key, parsed, merge=True)
     saved.resume = str(run_dir)
     return saved
@@ -157,11 +182,11 @@ def _run(cfg: DictConfig, phase: str) -> None:
     if not library_messages_requested(cfg):
         quiet_libraries()
     from drs_torchrl.updaters.base import NonFiniteError
-    from drs_torchrl.apps.build import train
+    from drs_torchrl.apps.build import Run
 
     run_dir = HydraConfig.get().runtime.output_dir
     record = Path(run_dir) / HydraConfig.get().output_subdir if HydraConfig.get().output_subdir else None
-    locked = []
+    locked, runner = [], None
     try:
         resume = bool(cfg.get("resume"))
         if resume:
@@ -175,12 +200,13 @@ def _run(cfg: DictConfig, phase: str) -> None:
         from drs_torchrl.tasks import family_from_config
 
         family_from_config(cfg.env)
-        summary = train(cfg, phase, run_dir, resume=resume)
+        runner = Run(cfg, phase, run_dir, resume=resume)
+        summary = runner.run()
     except NonFiniteError as exc:
         print(f"drs-{phase}: stopped: {exc}", file=sys.stderr)
         sys.exit(3)
     except Exception as exc:  # noqa: BLE001 (a bug is re-raised for the console wrapper to report)
-        msg = _user_message(exc, cfg, phase, run_dir)
+        msg = _user_message(exc, cfg, phase, run_dir, training=runner is not None and runner.training)
         if msg is None:
             raise
         print(f"drs-{phase}: error: {msg}", file=sys.stderr)
@@ -222,8 +248,9 @@ def _disk_full(exc: Exception) -> bool:
     return isinstance(exc, DiskFullError) or (isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT))
 
 
-def _user_message(exc: Exception, cfg: DictConfig, phase: str, run_dir) -> str | None:
-    """The one line for an error the user can fix (the config layer raises KeyError/ValueError), else None."""
+def _user_message(exc: Exception, cfg: DictConfig, phase: str, run_dir, training: bool = False) -> str | None:
+    """The one line for an error the user can fix, else None (a bug: the console wrapper reports it). While the
+    run is built, the config layer's KeyError/ValueError name a setting; once ``training``, they are bugs."""
     msg = user_error_message(exc)
     if _disk_full(exc):  # mid-run: what was saved is kept
         state = Path(run_dir) / "checkpoints" / "state" / "COMPLETE"
@@ -232,7 +259,7 @@ def _user_message(exc: Exception, cfg: DictConfig, phase: str, run_dir) -> str |
         return f"{msg}; no training state was saved yet"
     if msg is not None and msg.startswith("gymnasium:") and OmegaConf.select(cfg, "env.env_id", default=None):
         return f"env.env_id={cfg.env.env_id}: {msg}"
-    if msg is None and isinstance(exc, (KeyError, ValueError)):
+    if msg is None and not training and isinstance(exc, (KeyError, ValueError)):
         msg = str(exc.args[0] if isinstance(exc, KeyError) and exc.args else exc)
     return msg
 

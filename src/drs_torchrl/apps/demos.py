@@ -8,6 +8,7 @@ from pathlib import Path
 
 from drs_torchrl.console import UserError, console_script
 from drs_torchrl.demos import check_demos_out, load_maniskill_h5, record_demos, record_policy_demos, save_demos
+from drs_torchrl.demos.store import free_demos_path
 from drs_torchrl.tasks import get_family, with_task_observation
 
 
@@ -71,8 +72,10 @@ def main(argv: list[str] | None = None) -> int:
         "--out",
         type=Path,
         default=None,
-        help="default: demos/<family>-<variant>.demos (-policy.demos with --from-policy)",
+        help="default: demos/<family>-<variant>.demos (-policy.demos with --from-policy; -2.demos, -3.demos, ... "
+        "when that exists)",
     )
+    p.add_argument("--force", action="store_true", help="replace the demonstrations already at --out")
     a = p.parse_args(argv)
     if a.num is not None and a.num < 1:
         p.error("--num must be >= 1")
@@ -90,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
         p.error("--override applies to recording (the planner or --from-policy), not to --from-h5")
     try:
         if a.out is not None:
-            check_demos_out(a.out)  # now, not after minutes of recording
+            check_demos_out(a.out, replace=a.force)  # now, not after minutes of recording
         if a.from_policy is not None:  # a bad checkpoint raises PolicyCheckpointError, a ValueError
             states, meta = record_policy_demos(
                 a.from_policy,
@@ -116,7 +119,9 @@ def main(argv: list[str] | None = None) -> int:
                     variant_overrides=overrides or None,
                     control_mode=a.control_mode or fam.control_mode or "pd_joint_pos",
                 )
-        out = a.out or Path("demos") / f"{fam.name}-{meta['variant']}{'-policy' if a.from_policy else ''}.demos"
+        out = a.out or free_demos_path(
+            Path("demos") / f"{fam.name}-{meta['variant']}{'-policy' if a.from_policy else ''}.demos"
+        )
     except (KeyError, UserError, RuntimeError, ValueError, TypeError) as exc:
         print(f"drs-demos: error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
         return 2

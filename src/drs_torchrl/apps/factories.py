@@ -57,7 +57,11 @@ def make_envs(cfg: DictConfig, family: TaskFamily, reward: RewardSetup, device: 
             e.append_transform(DeviceCastTransform(device, orig_device=e.device))
     if reward.frozen is not None:
         reward.frozen.check_compatible(
-            env.observation_spec, num_stages=family.num_stages, family=family.name, action_spec=env.action_spec
+            env.observation_spec,
+            num_stages=family.num_stages,
+            family=family.name,
+            action_spec=env.action_spec,
+            stage_keys=family.stage_keys,
         )
         reward.frozen.to(device)
         env.append_transform(reward.frozen)

@@ -88,6 +88,11 @@ class RewardSchema:
 
 
 @dataclass
+class DemosSchema:
+    num: Optional[int] = setting(gt=0, example=100, hint="(null: all in the file)")
+
+
+@dataclass
 class RunSchema:
     """drs-learn / drs-reuse (``conf/learn.yaml``, ``conf/reuse.yaml`` and their groups)."""
 
@@ -100,6 +105,7 @@ class RunSchema:
     logger: LoggerSchema = field(default_factory=LoggerSchema)
     algo: AlgoSchema = field(default_factory=AlgoSchema)
     reward: RewardSchema = field(default_factory=RewardSchema)
+    demos: DemosSchema = field(default_factory=DemosSchema)
 
 
 # ----------------------------------------------------------------------------- drs-maze

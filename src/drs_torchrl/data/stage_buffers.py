@@ -15,6 +15,9 @@ go whole into the top buffer ``N``.
 
 from __future__ import annotations
 
+import shutil
+import tempfile
+import weakref
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -289,8 +292,8 @@ class StageBuffers(ReplayBuffer):
         capacity: transitions held by each stage buffer (its oldest overwritten first).
         stage_key: per-state stage index entry.
         batch_size: per-(stage, label) batch size of :meth:`sample_discriminator_batch`.
-        scratch_dir: if given, a :class:`~torchrl.data.LazyMemmapStorage` on disk there, so very
-            large buffers need not sit in memory.
+        scratch_dir: if given, a :class:`~torchrl.data.LazyMemmapStorage` on disk in a new folder inside it
+            (removed with the buffers), so very large buffers need not sit in memory.
     """
 
     def __init__(
@@ -304,10 +307,18 @@ class StageBuffers(ReplayBuffer):
         scratch_dir: str | None = None,
     ):
         size = (int(num_stages) + 1) * int(capacity)  # lazily allocated: untouched slots cost no memory
-        storage = LazyMemmapStorage(size, scratch_dir=scratch_dir) if scratch_dir else LazyTensorStorage(size)
+        own_dir = None
+        if scratch_dir:  # a folder of its own inside: runs (a sweep, a resume) can share scratch_dir
+            Path(scratch_dir).mkdir(parents=True, exist_ok=True)
+            own_dir = tempfile.mkdtemp(prefix="stage-buffers-", dir=scratch_dir)
+        storage = (
+            LazyMemmapStorage(size, scratch_dir=own_dir, auto_cleanup=True) if own_dir else LazyTensorStorage(size)
+        )
         super().__init__(
             storage=storage, sampler=StageSampler(num_stages), writer=StageRingWriter(num_stages, capacity)
         )
+        if own_dir:
+            weakref.finalize(self, shutil.rmtree, own_dir, True)
         self.disc_batch_size = int(batch_size)
         self.num_stages = int(num_stages)
         self.keys = list(dict.fromkeys([*keys, stage_key]))

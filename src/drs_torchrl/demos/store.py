@@ -73,14 +73,26 @@ def demo_meta(
     }
 
 
-def check_demos_out(path: str | Path) -> Path:
-    """``path`` if demonstrations can be written there: new, or demonstrations to replace (never another folder)."""
+def check_demos_out(path: str | Path, *, replace: bool = True) -> Path:
+    """``path`` if demonstrations can be written there: new, or (with ``replace``) demonstrations to replace;
+    never another folder."""
     path = check_writable(path, "--out", folder=True)
     if path.exists() and any(path.iterdir()) and not (path / "meta.json").is_file():
         raise DemoError(
             f"--out {path} is a folder that does not hold demonstrations; give a new path such as {path / 'my.demos'}"
         )
+    if not replace and (path / "meta.json").is_file():
+        raise DemoError(f"--out {path} already holds demonstrations; pass --force to replace them, or give a new path")
     return path
+
+
+def free_demos_path(path: Path) -> Path:
+    """``path``, or the first of ``NAME-2.demos``, ``NAME-3.demos``, ... that does not exist yet."""
+    n, out = 1, path
+    while out.exists():
+        n += 1
+        out = path.with_name(f"{path.name.removesuffix('.demos')}-{n}.demos")
+    return out
 
 
 def save_demos(states: TensorDict, meta: dict, path: str | Path) -> Path:
@@ -96,9 +108,12 @@ def save_demos(states: TensorDict, meta: dict, path: str | Path) -> Path:
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    old = path.with_name(path.name + ".old")  # replace by renames: a crash midway leaves one of the two whole
+    shutil.rmtree(old, ignore_errors=True)
     if path.exists():
-        shutil.rmtree(path)
+        path.rename(old)
     tmp.rename(path)
+    shutil.rmtree(old, ignore_errors=True)
     return path
 
 
@@ -115,7 +130,8 @@ def load_demos(path: str | Path) -> tuple[list[TensorDict], dict]:
             "demonstrations again with drs-demos"
         ) from None
     if not isinstance(meta, dict) or meta.get("format") != DEMO_FORMAT:
-        raise DemoError(f"{path}: unknown format {meta.get('format')!r}")
+        found = meta.get("format") if isinstance(meta, dict) else f"a JSON {type(meta).__name__}"
+        raise DemoError(f"{path}: unknown format {found!r}; make demonstrations with drs-demos")
     if int(meta.get("version", 99)) > DEMO_VERSION:
         raise DemoError(
             f"{path} has demo format version {meta['version']}, newer than this drs-torchrl reads ({DEMO_VERSION})"

@@ -25,7 +25,7 @@ class TaskFamily:
         name: registry key (``env=<name>`` on the command line).
         env_id: ManiSkill environment id that the variants parameterise (a variant may name its own
             ``env_id``; the variants of one split must then agree on it).
-        stage_keys: ordered stage indicators (Appendix A); the last one is success. Stage ``k`` of a
+        stage_keys: ordered stage indicators (Appendix A); the last one is ``"success"``. Stage ``k`` of a
             state is the number of (monotone) indicators that hold, so ``N = len(stage_keys)``.
         info_keys: info entries copied into the TensorDict (at least ``stage_keys``).
         reward_in_keys: observation entries the learned reward reads.
@@ -64,6 +64,11 @@ class TaskFamily:
             raise ValueError(f"family {self.name!r}: backend must be 'maniskill' or 'gymnasium', got {self.backend!r}")
         if not self.stage_keys:
             raise ValueError(f"family {self.name!r}: stage_keys must name at least the success indicator")
+        if self.stage_keys[-1] != "success":  # episodes, demonstrations and evaluation read info["success"]
+            raise ValueError(
+                f"family {self.name!r}: the last stage indicator must be the env's success flag 'success' "
+                f"(info['success']), got stage_keys={list(self.stage_keys)}"
+            )
         overlap = set(self.train_variants) & set(self.test_variants)
         if overlap:
             raise ValueError(f"family {self.name!r}: train and test variants overlap: {sorted(overlap)}")

@@ -34,6 +34,7 @@ from drs_torchrl.transforms.reward import (
     _ACTIVATIONS,
     RewardCheckpointError,
     bounded_reward_spec,
+    checkpoint_config,
     compatibility_problems,
     load_checked,
     read_reward_checkpoint,
@@ -42,6 +43,23 @@ from drs_torchrl.transforms.reward import (
 )
 
 OUTPUTS = ("log_sigmoid", "sigmoid")
+CLASSIFIER_SETTINGS = (  # what a checkpoint's settings must name
+    "in_keys",
+    "in_shapes",
+    "num_stages",
+    "use_action",
+    "action_dim",
+    "action_key",
+    "stage_key",
+    "output",
+    "offset",
+    "classifier_weight",
+    "stage_weight",
+    "hidden",
+    "activation",
+    "reward_key",
+    "method",
+)
 LOGIT_CLIP = 10.0
 
 
@@ -243,6 +261,7 @@ class ClassifierReward(Transform):
         if c.get("kind") != "classifier":
             raise RewardCheckpointError(f"{path} holds a {c.get('kind', 'drs')!r} reward, not a classifier reward")
         c.update({k: v for k, v in overrides.items() if v is not None})
+        c = checkpoint_config({"config": c}, path, CLASSIFIER_SETTINGS)
         reward = cls(
             c["in_keys"],
             c["in_shapes"],
@@ -265,7 +284,13 @@ class ClassifierReward(Transform):
         return reward.to(map_location)
 
     def check_compatible(
-        self, observation_spec, *, num_stages: int | None = None, family: str | None = None, action_spec=None
+        self,
+        observation_spec,
+        *,
+        num_stages: int | None = None,
+        family: str | None = None,
+        action_spec=None,
+        stage_keys=None,
     ) -> None:
         problems = compatibility_problems(
             self.metadata,
@@ -276,6 +301,7 @@ class ClassifierReward(Transform):
             num_stages=num_stages,
             family=family,
             action_spec=action_spec,
+            stage_keys=stage_keys,
             action_dim=self.action_dim,
         )
         if problems:

@@ -243,7 +243,11 @@ class DrSReward(Transform):
             raise RewardCheckpointError(
                 f"{path} holds a {payload['config']['kind']!r} reward, not a DrS reward; load it with load_reward()"
             )
-        c = payload["config"]
+        c = checkpoint_config(
+            payload,
+            path,
+            ("num_stages", "in_keys", "in_shapes", "stage_key", "formula", "alpha", "offset", "hidden", "activation"),
+        )
         reward = cls(
             c["num_stages"],
             c["in_keys"],
@@ -261,7 +265,13 @@ class DrSReward(Transform):
         return reward.to(map_location)
 
     def check_compatible(
-        self, observation_spec, *, num_stages: int | None = None, family: str | None = None, action_spec=None
+        self,
+        observation_spec,
+        *,
+        num_stages: int | None = None,
+        family: str | None = None,
+        action_spec=None,
+        stage_keys=None,
     ) -> None:
         """Raise :class:`RewardCheckpointError` naming every difference between this reward and an env."""
         problems = compatibility_problems(
@@ -273,6 +283,7 @@ class DrSReward(Transform):
             num_stages=num_stages,
             family=family,
             action_spec=action_spec,
+            stage_keys=stage_keys,
         )
         if problems:
             raise RewardCheckpointError("the reward does not fit this environment: " + "; ".join(problems))
@@ -346,7 +357,19 @@ def read_reward_checkpoint(path: str | os.PathLike, map_location="cpu") -> dict:
             f"{path} has checkpoint format version {payload['version']}, newer than this drs-torchrl "
             f"understands ({CHECKPOINT_VERSION}); upgrade drs-torchrl"
         )
+    lacks = [k for k in ("config", "state_dict") if not isinstance(payload.get(k), Mapping)]
+    if lacks:
+        raise RewardCheckpointError(f"{path} is damaged: it lacks its {' and '.join(lacks)}; learn the reward again")
     return payload
+
+
+def checkpoint_config(payload: dict, path, needs: Sequence[str]) -> dict:
+    """The reward's saved settings, which must name every one of ``needs``."""
+    c = dict(payload["config"])
+    lacks = [k for k in needs if k not in c]
+    if lacks:
+        raise RewardCheckpointError(f"{path} is damaged: its settings lack {lacks}; learn the reward again")
+    return c
 
 
 def load_checked(module: nn.Module, state_dict: Mapping[str, torch.Tensor], path) -> None:
@@ -374,16 +397,20 @@ def compatibility_problems(
     family=None,
     action_spec=None,
     action_dim: int | None = None,
+    stage_keys=None,
 ) -> list[str]:
-    """Every difference between a learned reward's inputs and an env, in words."""
+    """Every difference between a learned reward's inputs and an env, in words. ``stage_keys``: the env's
+    stage indicators, which must be those the reward was learned with (``D_k`` scores "beyond stage k")."""
     problems = []
     mine = metadata.get("family")
     if family is not None and mine is not None and mine != family:
         problems.append(f"it was learned on task family {mine!r}, the env is family {family!r}")
+    learned_with = metadata.get("stage_keys")
+    hint = f" (it was learned with env.stages=[{','.join(learned_with)}]: pass the same)" if learned_with else ""
     if num_stages is not None and num_stages != num_stages_mine:
-        learned_with = metadata.get("stage_keys")
-        hint = f" (it was learned with env.stages=[{','.join(learned_with)}]: pass the same)" if learned_with else ""
         problems.append(f"it has {num_stages_mine} stages, the env's family has {num_stages}{hint}")
+    elif stage_keys is not None and learned_with and list(learned_with) != list(stage_keys):
+        problems.append(f"its stages are {list(learned_with)}, the env's are {list(stage_keys)}{hint}")
     keys = set(observation_spec.keys(True, True))
     for k, dim in in_shapes.items():
         if k not in keys:
