@@ -108,3 +108,20 @@ def test_placed_threshold_moves_the_stage_indicator_and_not_success():
     assert at_goal["is_obj_placed"] and at_goal["success"] == at_goal["is_robot_static"]
     with pytest.raises(ValueError, match="placed_thresh must be >= 0"):
         evaluate_at({"placed_thresh": -0.1}, 0.0)
+
+
+def test_formulas_that_pay_for_hovering_short_of_success_are_flagged(tmp_path):
+    """Eq. 4 as printed (and the sum of tanh, Appendix F.3) gives rewards near or above 0, while ManiSkill ends an
+    episode on success: the run says so when it starts; the default (rescaled, the authors' code) does not."""
+    from drs_torchrl.apps.build import Run
+
+    def notes(*overrides):
+        config = cfg("env=turn_valve", "algo.hidden=[16,16]", "logger.tensorboard=false", *overrides)
+        run = Run(config, "learn", tmp_path / "_".join(overrides or ["default"]))
+        try:
+            return " ".join(run.notes)
+        finally:
+            run.close()
+
+    assert "reward.formula=paper gives rewards near or above 0" in notes("reward.formula=paper")
+    assert "formula=" not in notes()

@@ -67,6 +67,11 @@ def test_full_wrapped_stage_buffers_round_trip(tmp_path):
     sb.add_trajectory(_traj([0] * 4, 100))
     sb.add_trajectory(_traj([0] * 3, 200))  # stage 0 wraps: 103 and 200-202 remain
     assert sb.stage_counts().tolist() == [4, 0, 3]
+    # the snapshot reads the storage in place (a checkpoint measures and writes it without copying it in memory)
+    parts = sb.snapshot_parts()
+    store = sb.storage._storage["observation"]
+    assert [p["observation"].squeeze(-1).tolist() for p in parts] == [[103.0], [200.0, 201.0, 202.0], [0, 1, 2]]
+    assert all(p["observation"].untyped_storage().data_ptr() == store.untyped_storage().data_ptr() for p in parts)
     dump_buffer(sb, tmp_path / "sb")
     sb2 = StageBuffers(2, ["observation"], capacity=4, batch_size=4)
     load_buffer(sb2, tmp_path / "sb")

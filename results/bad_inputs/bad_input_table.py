@@ -155,6 +155,10 @@ def cases(work: Path, good_run: Path) -> list[Case]:
             "reward checkpoint with another observation layout", [*R, f"reward.checkpoint={work / 'other_layout.pt'}"]
         ),
         Case("reward checkpoint with another number of stages", [*R, f"reward.checkpoint={work / 'two_stages.pt'}"]),
+        Case(
+            "reward checkpoint learned with other stages (as many)",
+            [*R, f"reward.checkpoint={work / 'other_stages.pt'}"],
+        ),
         Case("truncated reward checkpoint", [*R, f"reward.checkpoint={work / 'truncated.pt'}"]),
         Case("reward checkpoint from a newer format version", [*R, f"reward.checkpoint={work / 'future.pt'}"]),
         Case("a policy checkpoint passed as the reward", [*R, f"reward.checkpoint={ck}/policy.pt"]),
@@ -174,8 +178,13 @@ def cases(work: Path, good_run: Path) -> list[Case]:
         Case("demonstrations that do not match the task", [*L, f"demos.path={work / 'wrong.demos'}"]),
         Case("demonstrations path that is not a demos directory", [*L, f"demos.path={work}"]),
         Case("demonstrations whose meta.json is damaged", [*L, "demos.path={d}/damaged.demos"]),
+        Case("a negative number of demonstrations", [*L, f"demos.path={work / 'wrong.demos'}", "demos.num=-1"]),
         Case("resume of a directory that is not a run", ["drs-learn", "resume={d}/nowhere"]),
         Case("resume switching a config group", ["drs-learn", "resume={good}", "algo=sac_paper"]),
+        Case(
+            "resume changing a setting the saved state was made with",
+            ["drs-learn", "resume={good}", "reward.hidden=[64]"],
+        ),
         Case("resume with drs-reuse of a drs-learn run", ["drs-reuse", "resume={good}"]),
         Case(
             "resume of a run whose config.yaml is not valid YAML", ["drs-learn", "resume={good}"], damage=damage_config
@@ -194,6 +203,10 @@ def cases(work: Path, good_run: Path) -> list[Case]:
         ),
         Case("config-defined family named like a built-in one", [*L, "env=custom", "env.family=pick_cube"]),
         Case(
+            "config-defined family whose last stage is not success",
+            [*L, "env=custom", "env.family=mine", "env.env_id=PushCube-v1", "env.stage_keys=[is_grasped,done]"],
+        ),
+        Case(
             "config-defined family with an env id ManiSkill does not know",
             [*L, "env=custom", "env.family=mine", "env.env_id=PushCub-v1"],
         ),
@@ -204,6 +217,10 @@ def cases(work: Path, good_run: Path) -> list[Case]:
         Case("drs-eval --out naming a folder", ["drs-eval", "{good}", "--out", "{d}"]),
         Case(
             "drs-demos --out naming a folder that is not demonstrations", ["drs-demos", "--num", "1", "--out", "{good}"]
+        ),
+        Case(
+            "drs-demos --out naming earlier demonstrations (no --force)",
+            ["drs-demos", "--num", "1", "--out", "{d}/earlier.demos"],
         ),
         Case("drs-demos --from-policy of a folder that is not a run", ["drs-demos", "--from-policy", "{d}"]),
         Case("drs-demos --from-h5 of a missing file", ["drs-demos", "--from-h5", "{d}/none.h5"]),
@@ -261,6 +278,8 @@ def prepare(work: Path) -> Path:
     other_family.save(work / "other_family.pt")
     DrSReward(3, ["observation"], {"observation": 48}, metadata=r.metadata).save(work / "other_layout.pt")
     DrSReward(2, r.reward_in_keys, r.in_shapes, metadata=r.metadata).save(work / "two_stages.pt")
+    swapped = {**r.metadata, "stage_keys": ["is_obj_placed", "is_grasped", "success"]}
+    DrSReward(3, r.reward_in_keys, r.in_shapes, metadata=swapped).save(work / "other_stages.pt")
     data = good.read_bytes()
     (work / "truncated.pt").write_bytes(data[: len(data) // 3])
     payload = torch.load(good, weights_only=True)
@@ -301,6 +320,8 @@ def run_case(case: Case, d: Path, work: Path, good_run: Path) -> tuple[int, str,
         shutil.copytree(good_run, d / "good", ignore=shutil.ignore_patterns(LOCK))
         if case.damage is not None:
             case.damage(d / "good")
+    if "earlier.demos" in " ".join(case.cmd):
+        shutil.copytree(work / "wrong.demos", d / "earlier.demos")
     if "damaged.demos" in " ".join(case.cmd):
         shutil.copytree(work / "wrong.demos", d / "damaged.demos")
         damage_demos(d / "damaged.demos")

@@ -146,6 +146,13 @@ class Run:
             )
             reward.learned = self.learner.reward
         self.learned = reward.learned
+        formula = getattr(self.learned if self.learned is not None else reward.frozen, "formula", None)
+        if formula in ("paper", "sum") and family.backend == "maniskill":
+            self.notes.append(
+                f"reward.formula={formula} gives rewards near or above 0 while a ManiSkill episode ends on success, "
+                "so an agent may earn more by staying just short of success; formula=rescaled (the default, the "
+                "authors' code) keeps every reward below 0"
+            )
 
         # the algorithm: an off-policy one samples a replay buffer whose transform recomputes the learned reward
         # (Algorithm 1, line 18), with the demonstrations' share of each batch (demos.sac_share)

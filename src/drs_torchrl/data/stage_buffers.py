@@ -258,10 +258,17 @@ class StageRingWriter(Writer):
 
     def slots_by_age(self, stage: int) -> torch.Tensor:
         """Storage slots of ``stage``, oldest first."""
-        C, n = self.capacity, int(self._filled[stage])
-        if n < C:
-            return stage * C + torch.arange(n)
-        return stage * C + (self._cursor[stage] + torch.arange(C)) % C
+        return torch.cat([torch.arange(a, b) for a, b in self.slot_ranges(stage)] or [torch.zeros(0, dtype=torch.long)])
+
+    def slot_ranges(self, stage: int) -> list[tuple[int, int]]:
+        """``stage``'s storage slots as at most two ``[start, stop)`` ranges, oldest first (a wrapped ring: two)."""
+        C, n, cursor = self.capacity, int(self._filled[stage]), int(self._cursor[stage])
+        start = stage * C
+        if n == 0:
+            return []
+        if n < C or cursor == 0:
+            return [(start, start + n)]
+        return [(start + cursor, start + C), (start, start + cursor)]
 
     def state_dict(self) -> dict[str, Any]:
         return {"cursor": self._cursor.clone(), "filled": self._filled.clone(), "write_count": self._write_count}
@@ -337,8 +344,10 @@ class StageBuffers(ReplayBuffer):
         return self._storage._storage[self._writer.slots_by_age(stage)]
 
     def snapshot_parts(self) -> list[TensorDictBase]:
-        """Each stage's items, oldest first (what :func:`~drs_torchrl.data.persistence.dump_buffer` saves)."""
-        return [self.stage_data(j) for j in range(self.num_stages + 1) if self._writer.filled()[j] > 0]
+        """Each stage's items, oldest first (what :func:`~drs_torchrl.data.persistence.dump_buffer` saves): views
+        of the storage, so that measuring and saving a snapshot copies nothing in memory."""
+        storage = self._storage._storage
+        return [storage[a:b] for j in range(self.num_stages + 1) for a, b in self._writer.slot_ranges(j)]
 
     def add_trajectory(self, trajectory: TensorDictBase, *, demo: bool = False) -> int:
         """File one finished trajectory (a ``(T,)`` TensorDict of transitions with ``"next"``).
