@@ -32,10 +32,10 @@ from torchrl.envs.transforms import Transform
 
 from drs_torchrl.transforms.reward import (
     _ACTIVATIONS,
+    LearnedRewardChecks,
     RewardCheckpointError,
     bounded_reward_spec,
     checkpoint_config,
-    compatibility_problems,
     load_checked,
     read_reward_checkpoint,
     require,
@@ -85,7 +85,7 @@ class Classifier(nn.Module):
         return self.net(x)
 
 
-class ClassifierReward(Transform):
+class ClassifierReward(LearnedRewardChecks, Transform):
     """Reward ``w_c * f(D(x)) + w_s * (k - N)`` of one classifier ``D`` (module docstring).
 
     Args:
@@ -282,32 +282,6 @@ class ClassifierReward(Transform):
         )
         load_checked(reward.classifier, payload["state_dict"], path)
         return reward.to(map_location)
-
-    def check_compatible(
-        self,
-        observation_spec,
-        *,
-        num_stages: int | None = None,
-        family: str | None = None,
-        action_spec=None,
-        stage_keys=None,
-    ) -> None:
-        problems = compatibility_problems(
-            self.metadata,
-            self.in_shapes,
-            self.num_stages,
-            self.stage_key,
-            observation_spec,
-            num_stages=num_stages,
-            family=family,
-            action_spec=action_spec,
-            stage_keys=stage_keys,
-            action_dim=self.action_dim,
-        )
-        if problems:
-            raise RewardCheckpointError(
-                f"the {self.method} reward does not fit this environment: " + "; ".join(problems)
-            )
 
     def __repr__(self) -> str:
         return (

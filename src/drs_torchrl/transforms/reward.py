@@ -82,7 +82,38 @@ class StageDiscriminators(nn.Module):
         return self.nets[k](x).squeeze(-1)
 
 
-class DrSReward(Transform):
+class LearnedRewardChecks:
+    """``check_compatible`` of a learned reward transform (DrS, the classifier baselines): it reads ``metadata``,
+    ``in_shapes``, ``num_stages``, ``stage_key`` and, if it reads actions, ``action_dim``."""
+
+    def check_compatible(
+        self,
+        observation_spec,
+        *,
+        num_stages: int | None = None,
+        family: str | None = None,
+        action_spec=None,
+        stage_keys=None,
+    ) -> None:
+        """Raise :class:`RewardCheckpointError` naming every difference between this reward and an env."""
+        problems = compatibility_problems(
+            self.metadata,
+            self.in_shapes,
+            self.num_stages,
+            self.stage_key,
+            observation_spec,
+            num_stages=num_stages,
+            family=family,
+            action_spec=action_spec,
+            action_dim=getattr(self, "action_dim", None),
+            stage_keys=stage_keys,
+        )
+        if problems:
+            what = f"the {self.method} reward" if getattr(self, "method", None) else "the reward"
+            raise RewardCheckpointError(f"{what} does not fit this environment: " + "; ".join(problems))
+
+
+class DrSReward(LearnedRewardChecks, Transform):
     """Learned dense reward of DrS (Eq. 4), holding the per-stage discriminators.
 
     Args:
@@ -263,30 +294,6 @@ class DrSReward(Transform):
         )
         load_checked(reward.discriminators, payload["state_dict"], path)
         return reward.to(map_location)
-
-    def check_compatible(
-        self,
-        observation_spec,
-        *,
-        num_stages: int | None = None,
-        family: str | None = None,
-        action_spec=None,
-        stage_keys=None,
-    ) -> None:
-        """Raise :class:`RewardCheckpointError` naming every difference between this reward and an env."""
-        problems = compatibility_problems(
-            self.metadata,
-            self.in_shapes,
-            self.num_stages,
-            self.stage_key,
-            observation_spec,
-            num_stages=num_stages,
-            family=family,
-            action_spec=action_spec,
-            stage_keys=stage_keys,
-        )
-        if problems:
-            raise RewardCheckpointError("the reward does not fit this environment: " + "; ".join(problems))
 
     def __repr__(self) -> str:
         return (
