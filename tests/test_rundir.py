@@ -221,3 +221,41 @@ def test_library_prints_are_counted_not_shown(capsys, monkeypatch):
     with library_prints(said):
         print("screw plan failed")
     assert "screw plan failed" in capsys.readouterr().out
+
+
+def test_saved_files_reach_the_disk_before_anything_vouches_for_them(tmp_path, monkeypatch):
+    """A machine crash (power, kernel) loses what is only in the page cache: the training state is flushed before
+    its COMPLETE marker is written, the marker before the swap, the swap before the fallback state is deleted."""
+    import drs_torchrl.checkpoint as ck
+    from drs_torchrl.rundir import fsync_tree
+
+    (tmp_path / "tree" / "sub").mkdir(parents=True)
+    (tmp_path / "tree" / "sub" / "f").write_text("x")
+    fsync_tree(tmp_path / "tree")  # real files and folders: no error
+
+    events = []
+    real_rename = Path.rename
+
+    def listing(p):
+        p = Path(p)
+        return sorted(x.name for x in p.iterdir()) if p.is_dir() else p.name
+
+    monkeypatch.setattr(ck, "fsync_tree", lambda p: events.append(("flush", listing(p))))
+    monkeypatch.setattr(ck, "fsync_path", lambda p: events.append(("flush entries of", Path(p).name)))
+    monkeypatch.setattr(
+        Path, "rename", lambda self, to: (events.append(("rename", self.name, Path(to).name)), real_rename(self, to))[1]
+    )
+    checkpointer = ck.Checkpointer(tmp_path / "run")
+    checkpointer._write_state({"counters": {"frames": 1}})
+    events.clear()
+    checkpointer._write_state({"counters": {"frames": 2}})
+    tmp = f"state.tmp-{os.getpid()}"
+    assert events == [
+        ("flush", ["trainer.pt"]),
+        ("flush", "COMPLETE"),
+        ("rename", "state", "state.old"),
+        ("rename", tmp, "state"),
+        ("flush entries of", "checkpoints"),
+    ]
+    assert (tmp_path / "run" / "checkpoints" / "state" / "COMPLETE").read_text() == "2"
+    assert not (tmp_path / "run" / "checkpoints" / "state.old").exists()

@@ -22,7 +22,7 @@ from torchrl.data import ReplayBuffer
 
 from drs_torchrl.data.persistence import SnapshotError, buffer_bytes, dump_buffer, load_buffer
 from drs_torchrl.errors import UserError
-from drs_torchrl.rundir import ensure_free, nbytes, space_errors
+from drs_torchrl.rundir import ensure_free, fsync_path, fsync_tree, nbytes, space_errors
 from drs_torchrl.signals import signals_deferred
 
 STATE_FORMAT = "drs-torchrl/training-state"
@@ -62,7 +62,10 @@ def _atomic_write(path: Path, write, mode: str) -> None:
     try:
         with space_errors(path, "the file"), open(tmp, mode) as f:
             write(f)
+            f.flush()
+            os.fsync(f.fileno())  # on the disk before it takes the name (a machine crash keeps old or new)
         os.replace(tmp, path)
+        fsync_path(path.parent)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -138,7 +141,9 @@ class Checkpointer:
                     self.learner.dump_buffers(tmp)
                 with open(tmp / "trainer.pt", "wb") as f:  # an open file: a full disk raises ENOSPC
                     torch.save(payload, f)
+                fsync_tree(tmp)  # everything on the disk before COMPLETE vouches for it
                 (tmp / "COMPLETE").write_text(str(payload.get("counters", {}).get("frames", "")))
+                fsync_tree(tmp / "COMPLETE")
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)  # the last complete state stays as it was
             raise
@@ -149,6 +154,7 @@ class Checkpointer:
         elif final.exists():
             shutil.rmtree(final)  # a partial state left by a crash; old (if any) stays the fallback
         tmp.rename(final)
+        fsync_path(ck)  # the renames on the disk before the fallback goes
         shutil.rmtree(old, ignore_errors=True)
         return final
 

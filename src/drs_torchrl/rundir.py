@@ -174,6 +174,24 @@ def space_errors(path: str | os.PathLike, what: str):
         ) from exc
 
 
+def fsync_tree(path: str | os.PathLike) -> None:
+    """Flush ``path`` (a file, or a folder with everything in it) to the disk, so that a rename or a ``COMPLETE``
+    marker written after it never survives a machine crash (power, kernel) while the data it vouches for does not."""
+    path = Path(path)
+    for p in sorted(path.rglob("*"), reverse=True) if path.is_dir() else []:
+        fsync_path(p)
+    fsync_path(path)
+
+
+def fsync_path(path: str | os.PathLike) -> None:
+    """Flush one file, or one folder's entries (names made or renamed in it), to the disk."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
 def load_run_config(run_dir: str | os.PathLike, needs: tuple[str, ...] = ("phase", "env", "reward", "algo")):
     """``RUN_DIR/config.yaml`` as an OmegaConf config, or a :class:`RunFileError` saying what is wrong with it
     (not YAML, or without the sections ``needs``)."""

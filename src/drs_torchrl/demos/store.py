@@ -27,7 +27,7 @@ from tensordict import TensorDict
 
 from drs_torchrl.console import UserError
 from drs_torchrl.data.persistence import load_memmap_checked
-from drs_torchrl.rundir import check_writable, ensure_free, nbytes, space_errors
+from drs_torchrl.rundir import check_writable, ensure_free, fsync_tree, nbytes, space_errors
 from drs_torchrl.tasks import TaskFamily
 from drs_torchrl.transforms.stages import StageIndicator, monotone_indicators
 
@@ -105,6 +105,7 @@ def save_demos(states: TensorDict, meta: dict, path: str | Path) -> Path:
             tmp.mkdir(parents=True)
             states.memmap(tmp / "states", num_threads=0)
             (tmp / "meta.json").write_text(json.dumps(meta, indent=2))
+            fsync_tree(tmp)  # on the disk before it takes the name
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -27,6 +27,7 @@ from torch import nn
 from torchrl.envs.transforms import Transform
 
 from drs_torchrl.errors import UserError
+from drs_torchrl.rundir import fsync_path
 
 CHECKPOINT_FORMAT = "drs-torchrl/reward"
 CHECKPOINT_VERSION = 1
@@ -336,7 +337,9 @@ def write_reward_checkpoint(path: str | os.PathLike, config: dict, state_dict: M
     os.close(fd)
     try:
         torch.save(payload, tmp)
+        fsync_path(tmp)  # on the disk before it takes the name
         os.replace(tmp, path)
+        fsync_path(path.parent)
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
