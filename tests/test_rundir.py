@@ -241,7 +241,7 @@ def test_saved_files_reach_the_disk_before_anything_vouches_for_them(tmp_path, m
         return sorted(x.name for x in p.iterdir()) if p.is_dir() else p.name
 
     monkeypatch.setattr(ck, "fsync_tree", lambda p: events.append(("flush", listing(p))))
-    monkeypatch.setattr(ck, "fsync_path", lambda p: events.append(("flush entries of", Path(p).name)))
+    monkeypatch.setattr(ck, "fsync_path", lambda p: events.append(("fsync", Path(p).name)))
     monkeypatch.setattr(
         Path, "rename", lambda self, to: (events.append(("rename", self.name, Path(to).name)), real_rename(self, to))[1]
     )
@@ -252,10 +252,11 @@ def test_saved_files_reach_the_disk_before_anything_vouches_for_them(tmp_path, m
     tmp = f"state.tmp-{os.getpid()}"
     assert events == [
         ("flush", ["trainer.pt"]),
-        ("flush", "COMPLETE"),
+        ("fsync", "COMPLETE"),
+        ("fsync", tmp),
         ("rename", "state", "state.old"),
         ("rename", tmp, "state"),
-        ("flush entries of", "checkpoints"),
+        ("fsync", "checkpoints"),
     ]
     assert (tmp_path / "run" / "checkpoints" / "state" / "COMPLETE").read_text() == "2"
     assert not (tmp_path / "run" / "checkpoints" / "state.old").exists()

@@ -143,7 +143,8 @@ class Checkpointer:
                     torch.save(payload, f)
                 fsync_tree(tmp)  # everything on the disk before COMPLETE vouches for it
                 (tmp / "COMPLETE").write_text(str(payload.get("counters", {}).get("frames", "")))
-                fsync_tree(tmp / "COMPLETE")
+                fsync_path(tmp / "COMPLETE")
+                fsync_path(tmp)  # the marker's name too
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)  # the last complete state stays as it was
             raise

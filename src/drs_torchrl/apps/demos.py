@@ -7,8 +7,14 @@ import sys
 from pathlib import Path
 
 from drs_torchrl.console import UserError, console_script
-from drs_torchrl.demos import check_demos_out, load_maniskill_h5, record_demos, record_policy_demos, save_demos
-from drs_torchrl.demos.store import free_demos_path
+from drs_torchrl.demos import (
+    check_demos_out,
+    free_demos_path,
+    load_maniskill_h5,
+    record_demos,
+    record_policy_demos,
+    save_demos,
+)
 from drs_torchrl.tasks import get_family, with_task_observation
 
 

@@ -261,7 +261,7 @@ class ClassifierReward(LearnedRewardChecks, Transform):
         if c.get("kind") != "classifier":
             raise RewardCheckpointError(f"{path} holds a {c.get('kind', 'drs')!r} reward, not a classifier reward")
         c.update({k: v for k, v in overrides.items() if v is not None})
-        c = checkpoint_config({"config": c}, path, CLASSIFIER_SETTINGS)
+        c = checkpoint_config(c, path, CLASSIFIER_SETTINGS)
         reward = cls(
             c["in_keys"],
             c["in_shapes"],

@@ -276,7 +276,7 @@ class DrSReward(LearnedRewardChecks, Transform):
                 f"{path} holds a {payload['config']['kind']!r} reward, not a DrS reward; load it with load_reward()"
             )
         c = checkpoint_config(
-            payload,
+            payload["config"],
             path,
             ("num_stages", "in_keys", "in_shapes", "stage_key", "formula", "alpha", "offset", "hidden", "activation"),
         )
@@ -373,9 +373,9 @@ def read_reward_checkpoint(path: str | os.PathLike, map_location="cpu") -> dict:
     return payload
 
 
-def checkpoint_config(payload: dict, path, needs: Sequence[str]) -> dict:
-    """The reward's saved settings, which must name every one of ``needs``."""
-    c = dict(payload["config"])
+def checkpoint_config(config: Mapping, path, needs: Sequence[str]) -> dict:
+    """A copy of a reward checkpoint's saved settings, which must name every one of ``needs``."""
+    c = dict(config)
     lacks = [k for k in needs if k not in c]
     if lacks:
         raise RewardCheckpointError(f"{path} is damaged: its settings lack {lacks}; learn the reward again")
