@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The study's record, from its worktree into this checkout: a report with this checkout's code (it pins each reuse
-# run's reward by hash), then the finished runs' files, status.md, learn/ and figures/. A run still going, or
+# run's reward by hash), then the finished runs' files, status.md, learn/, figures/ and decision.md (the
+# pre-registered rule on the runs finished so far, marked provisional until all have). A run still going, or
 # paused, stays out until it finishes (its partial copy is removed from the worktree's record too, so that the
 # worktree's study never reads it as a record). Afterwards: update the tables of README.md, then
 # tests/test_records.py and tests/test_paths.py, then commit.
@@ -25,5 +26,6 @@ for f in stack_cube place_sphere; do
     fi
   done
   cp "$wt/$rec/status.md" "$main/$rec/" && cp -r "$wt/$rec/learn" "$wt/$rec/figures" "$main/$rec/"
+  (cd "$main" && .venv/bin/python results/recipe/decide.py "$rec" > /dev/null)   # decision.md, provisional until all finish
   echo "$f: $(ls "$main/$rec/run_files" | wc -l) runs in the record"
 done
