@@ -3,7 +3,7 @@
 # run's reward by hash), then the finished runs' files, status.md, learn/, figures/ and decision.md (the
 # pre-registered rule on the runs finished so far, marked provisional until all have). A run still going, or
 # paused, stays out until it finishes (its partial copy is removed from the worktree's record too, so that the
-# worktree's study never reads it as a record). Afterwards: update the tables of README.md, then
+# worktree's study never reads it as a record). Afterwards: update the tables of <family>/README.md, then
 # tests/test_records.py and tests/test_paths.py, then commit.
 #   results/recipe/collect.sh ../study-wt
 set -euo pipefail
