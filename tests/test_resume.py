@@ -81,6 +81,8 @@ def test_sigkill_then_resume_continues_from_the_saved_step(tmp_path):
     assert p.returncode == 0, p.stderr[-3000:]
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["resumed_from"] == saved_frames and summary["frames"] >= 2048
+    # the killed process counts up to its last saved state; what it did after that was redone
+    assert [(g["from"], g["to"]) for g in summary["segments"]] == [(0, saved_frames), (saved_frames, summary["frames"])]
     steps = _steps(run_dir / "train.csv")
     assert steps == sorted(set(steps)), "duplicate or unordered log rows"
     assert all(b - a <= 256 + 64 for a, b in zip(steps, steps[1:])), f"gap in the log: {steps}"
@@ -116,6 +118,9 @@ def test_sigterm_saves_state_and_resume_finishes(tmp_path):
     assert p.returncode == 0, p.stderr[-3000:]
     s2 = json.loads((run_dir / "summary.json").read_text())
     assert s2["resumed_from"] == summary["frames"] and s2["frames"] >= summary["frames"] + 256
+    # the run's history: the interrupted process up to its saved state, then the resumed one
+    assert [(g["from"], g["to"]) for g in s2["segments"]] == [(0, summary["frames"]), (summary["frames"], s2["frames"])]
+    assert all(g["wall_s"] > 0 for g in s2["segments"]) and s2["env_steps_per_s_overall"] > 0
 
 
 def _digest(d: Path) -> dict:

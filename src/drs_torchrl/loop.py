@@ -45,6 +45,8 @@ class Progress:
     frames: int = 0
     last_eval_frames: int = -1
     resumed_from: int | None = None
+    # the run's earlier processes, one {"from", "to", "wall_s"} each (what each covered up to its last saved state)
+    segments: list[dict] = field(default_factory=list)
 
 
 def episode_summary(ep, reward_fn) -> tuple[int, bool, int, float]:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import functools
 import json
 import random
+import time
 from pathlib import Path
 from typing import Any
 
@@ -405,12 +406,21 @@ class Run:
                 "disc_updates": self.learner.updates if self.learner is not None else 0,
                 "owed_updates": u.pop("owed_updates"),
                 "last_eval_frames": self.progress.last_eval_frames,
+                "segments": self.segments(),
             },
             **u,  # loss, optimizers (and whatever else the updater keeps)
             "learner": self.learner.state_dict() if self.learner is not None else None,
             "recent_episodes": list(self.episodes.recent),
             "rng": rng_state(),
         }
+
+    def segments(self) -> list[dict]:
+        """The run's processes so far: the earlier ones (from the training state) and this one, up to now."""
+        start = getattr(self, "_segment_start", None)
+        if start is None:
+            return list(self.progress.segments)
+        now = {"from": self._segment_from, "to": self.frames, "wall_s": round(time.perf_counter() - start, 1)}
+        return [*self.progress.segments, now]
 
     def load_training_state(self) -> None:
         payload, state_dir = self.checkpointer.read_state(self.phase)
@@ -421,6 +431,7 @@ class Run:
             )
         c = payload["counters"]
         self.progress.frames, self.progress.last_eval_frames = int(c["frames"]), int(c["last_eval_frames"])
+        self.progress.segments = list(c.get("segments", []))  # states written before segments were kept: none
         known = ("format", "version", "phase", "algo", "counters", "learner", "recent_episodes", "rng")
         state = {k: v for k, v in payload.items() if k not in known}
         self.updater.load_state_dict({**state, "updates": c["updates"], "owed_updates": c["owed_updates"]})
@@ -477,6 +488,7 @@ class Run:
     def run(self) -> dict[str, Any]:
         """Algorithm 1 from where the run stands to ``total_frames`` env steps; writes and returns the summary."""
         cfg = self.cfg
+        self._segment_from, self._segment_start = self.frames, time.perf_counter()
         summary: dict[str, Any] = {
             "phase": self.phase,
             "run_dir": str(self.run_dir),
@@ -521,6 +533,13 @@ class Run:
                     progress_bar=bool(cfg.logger.progress_bar),
                     where=str(self.checkpointer.dir),
                 )
+            )
+            segments = self.segments()  # every process of the run: where each started and ended, its wall time
+            summary.update(
+                segments=segments,
+                env_steps_per_s_overall=round(
+                    sum(g["to"] - g["from"] for g in segments) / max(sum(g["wall_s"] for g in segments), 1e-9), 1
+                ),
             )
             atomic_write_text(self.run_dir / "summary.json", json.dumps(summary, indent=2))
         finally:
