@@ -34,11 +34,9 @@ def training_facts(run: Path) -> dict:
     for c in _stages(train):
         rows = train[["step", c]].dropna()
         above = rows[rows[c] >= 0.5]
-        below = rows[rows[c] < 0.5]
-        stays = "-" if not len(above) else "never" if below["step"].max() > above["step"].max() else None
-        if stays is None:
-            after = rows[rows["step"] > below["step"].max()] if len(below) else rows
-            stays = _k(after["step"].iloc[0])
+        below = rows.loc[rows[c] < 0.5, "step"]
+        after = rows.loc[rows["step"] > (below.max() if len(below) else -1), "step"]  # the rows past the last dip
+        stays = _k(after.iloc[0]) if len(after) else "never" if len(above) else "-"
         out[f"{c}: first >= 0.5"] = _k(above["step"].iloc[0]) if len(above) else "never"
         out[f"{c}: stays from"] = stays
         out[f"{c}: best"] = round(float(rows[c].max()), 2)

@@ -184,6 +184,7 @@ class Run:
             self.load_training_state()
             self.progress.resumed_from = self.frames
             self.env.set_seed(int(cfg.seed) + 1 + self.frames)  # fresh episodes, not the first run's
+        self._segment_from, self._segment_start = self.frames, time.perf_counter()  # this process's part of the run
         self.logger = RunLogger(
             self.run_dir,
             tensorboard=cfg.logger.tensorboard,
@@ -416,10 +417,11 @@ class Run:
 
     def segments(self) -> list[dict]:
         """The run's processes so far: the earlier ones (from the training state) and this one, up to now."""
-        start = getattr(self, "_segment_start", None)
-        if start is None:
-            return list(self.progress.segments)
-        now = {"from": self._segment_from, "to": self.frames, "wall_s": round(time.perf_counter() - start, 1)}
+        now = {
+            "from": self._segment_from,
+            "to": self.frames,
+            "wall_s": round(time.perf_counter() - self._segment_start, 1),
+        }
         return [*self.progress.segments, now]
 
     def load_training_state(self) -> None:
@@ -488,7 +490,6 @@ class Run:
     def run(self) -> dict[str, Any]:
         """Algorithm 1 from where the run stands to ``total_frames`` env steps; writes and returns the summary."""
         cfg = self.cfg
-        self._segment_from, self._segment_start = self.frames, time.perf_counter()
         summary: dict[str, Any] = {
             "phase": self.phase,
             "run_dir": str(self.run_dir),
