@@ -1,6 +1,7 @@
 """The one reward registry: conf/reward/<name>.yaml names what builds each reward (slot, learner) by _target_, and a
 new reward is one YAML away (no module lists reward names)."""
 
+import re
 import shutil
 from pathlib import Path
 
@@ -45,10 +46,19 @@ def test_an_unknown_reward_names_the_registry():
         reward_entry(OmegaConf.create({"name": "nonsense"}))
 
 
+def documented_reward_file() -> str:
+    """The example file of docs/rewards.md ("Adding a reward"), as a user would copy it."""
+    text = (ROOT / "docs" / "rewards.md").read_text()
+    blocks = [b for b in re.findall(r"^```yaml\n(.*?)^```", text, re.S | re.M) if "conf/reward/my_classifier" in b]
+    assert len(blocks) == 1, "docs/rewards.md should show one example reward file, conf/reward/my_classifier.yaml"
+    return blocks[0]
+
+
 @pytest.mark.sim
 def test_a_new_reward_is_one_yaml_file(tmp_path, monkeypatch):
     """A copy of the configs with two new reward files, and nothing else changed: a static one (the stage index under
-    another name) and a learned one (VICE-RAQ's learner under another name) are composed, set up and learned."""
+    another name) and a learned one (docs/rewards.md's example: VICE-RAQ's learner under another name) are composed,
+    set up and learned."""
     conf = tmp_path / "conf"
     shutil.copytree(conf_dir(), conf)
     (conf / "reward" / "stage_index.yaml").write_text(
@@ -56,7 +66,7 @@ def test_a_new_reward_is_one_yaml_file(tmp_path, monkeypatch):
         "slot: {_target_: drs_torchrl.rewards.semi_sparse_reward, _partial_: true}\n"
     )
     (conf / "reward" / "success_classifier.yaml").write_text(
-        (conf / "reward" / "vice_raq.yaml").read_text().replace("name: vice_raq", "name: success_classifier")
+        documented_reward_file().replace("name: my_classifier", "name: success_classifier")
     )
     monkeypatch.setenv("DRS_CONF_DIR", str(conf))
     assert {"stage_index", "success_classifier"} <= set(available_rewards())
