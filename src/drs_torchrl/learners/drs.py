@@ -20,7 +20,7 @@ from drs_torchrl.transforms.reward import DrSReward
 class DrSLearner(RewardLearner):
     """Files every finished episode into the stage buffer of the highest stage it reached
     (:class:`~drs_torchrl.data.StageBuffers`) and trains discriminator ``k`` on "got beyond stage k"
-    vs "stopped at k" (:class:`~drs_torchrl.objectives.DiscriminatorLoss`, early stop of Sec. 4.3).
+    vs "stopped at k or before" (:class:`~drs_torchrl.objectives.DiscriminatorLoss`, early stop of Sec. 4.3).
 
     Args:
         reward: the :class:`~drs_torchrl.transforms.DrSReward` it trains (in place).

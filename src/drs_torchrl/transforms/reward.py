@@ -1,7 +1,7 @@
 """The DrS learned reward (Sec. 4.2, Eq. 4) as a TorchRL transform.
 
 ``R(s') = k + alpha * tanh(D_k(s'))`` where ``k`` is the stage index of the next state ``s'`` and
-``D_k`` the discriminator of stage ``k`` ("got beyond stage k" vs "stopped at k"). Because
+``D_k`` the discriminator of stage ``k`` ("got beyond stage k" vs "stopped at k or before"). Because
 ``|tanh| < 1``, any ``alpha < 1/2`` ranks every state of stage ``k+1`` above every state of stage
 ``k``. At the top stage ``N`` (success) there is no discriminator and the dense term is 0.
 
@@ -10,7 +10,8 @@ Formulas (``formula=``):
     * ``"rescaled"``: the authors' public code, ``(k + alpha * tanh(D_k(s'))) / N + offset``
       (with alpha = 1/3 and offset = -2 this is ``(3k + tanh(D_k)) / (3N) - 2``).
     * ``"sum"``: the reward-formulation ablation of Appendix F.3, ``sum_k tanh(D_k(s'))``, which
-      ignores the stage index (it does not keep the ordering guarantee).
+      ignores the stage index (it does not keep the ordering guarantee). It is not shifted: in
+      ``(-N, N)``, so where episodes end on success, staying short of it can pay more than reaching it.
 """
 
 from __future__ import annotations
@@ -44,8 +45,9 @@ class StageDiscriminators(nn.Module):
 
     ``forward(x)`` returns the logits of every discriminator, shape ``(*batch, N)``, so the reward
     of a batch of mixed stages is one pass followed by a gather. ``trained[k]`` records whether
-    discriminator ``k`` has taken a training step; an untrained one contributes 0 to the reward (as
-    in the authors' code), not the output of its random initialisation.
+    discriminator ``k`` has taken a training step; an untrained one contributes 0 to the reward, not the
+    output of its random initialisation: as in the authors' phase 1, and kept in phase 2 through the
+    checkpoint (their reuse script marks every loaded discriminator trained).
     """
 
     def __init__(

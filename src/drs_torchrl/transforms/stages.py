@@ -1,8 +1,10 @@
 """Stage labelling (Sec. 3, Eq. 2 and Eq. 3 of the DrS paper).
 
 :class:`StageIndicator` reads a task's ordered boolean stage indicators (the last one is success),
-makes them monotone (reaching a later stage implies the earlier ones, as the authors' code does),
-and writes the integer stage index ``k`` of the state, ``0 <= k <= N``.
+makes them monotone (reaching a later stage implies the earlier ones: the authors' TurnFaucet and
+OpenCabinetDoor indicators are built so; their PickAndPlace sums the raw ones, so a cube released at
+the goal counts as placed but not grasped there, and as past both here), and writes the integer stage
+index ``k`` of the state, ``0 <= k <= N``.
 :class:`SemiSparseReward` turns that index into the semi-sparse reward ``R(s') = k`` (Eq. 2).
 """
 
