@@ -35,27 +35,32 @@ def test_factories_and_the_algo_updater_assemble_a_sac_update_on_a_family_env():
 
 
 @pytest.mark.parametrize(
-    "algo, batch, utd, disc_steps",
+    "algo, batch, utd, disc_steps, disc_batch",
     [
-        ("sac_cpu", 256, 0.5, 1),
-        ("sac_cpu_utd025", 512, 0.25, 2),
-        ("sac_cpu_utd033", 384, 0.3333333333, 1.5),
-        ("sac_cpu_halfdisc", 256, 0.5, 0.5),
-        ("sac_cpu_utd033_halfdisc", 384, 0.3333333333, 0.75),
-        ("sac_paper", 1024, 0.5, 1),
-        ("sac_paper_utd025", 2048, 0.25, 2),
+        ("sac_cpu", 256, 0.5, 1, 256),
+        ("sac_cpu_utd025", 512, 0.25, 2, 256),
+        ("sac_cpu_utd033", 384, 0.3333333333, 1.5, 256),
+        ("sac_cpu_halfdisc", 256, 0.5, 0.5, 256),
+        ("sac_cpu_utd033_halfdisc", 384, 0.3333333333, 0.75, 256),
+        ("sac_paper", 1024, 0.5, 1, 1024),
+        ("sac_paper_utd025", 2048, 0.25, 2, 1024),
     ],
 )
-def test_reward_learner_steps_follow_the_algo_config(algo, batch, utd, disc_steps):
+def test_reward_learner_steps_follow_the_algo_config(algo, batch, utd, disc_steps, disc_batch):
     """Fewer, larger SAC updates keep the discriminators' steps per env step (issue 12): each learned
-    reward's ``disc.updates_per_sac_update`` comes from the algo config, and an explicit override wins."""
+    reward's ``disc.updates_per_sac_update`` comes from the algo config, and so does its batch per side
+    (``sac_paper``: the paper's 1024, Appendix E's one batch size); an explicit override wins."""
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
-        for reward in ("drs", "vice_raq", "gail", "oril"):
+        for reward in ("drs", "vice_raq", "gail", "gail_stages", "oril"):
             cfg = compose("learn", overrides=[f"algo={algo}", f"reward={reward}"])
-            assert (cfg.algo.batch_size, cfg.algo.utd, cfg.reward.disc.updates_per_sac_update) == (
-                batch,
-                utd,
-                disc_steps,
+            got = (
+                cfg.algo.batch_size,
+                cfg.algo.utd,
+                cfg.reward.disc.updates_per_sac_update,
+                cfg.reward.disc.batch_size,
             )
-        cfg = compose("learn", overrides=[f"algo={algo}", "reward.disc.updates_per_sac_update=3"])
-        assert cfg.reward.disc.updates_per_sac_update == 3
+            assert got == (batch, utd, disc_steps, disc_batch), reward
+        cfg = compose(
+            "learn", overrides=[f"algo={algo}", "reward.disc.updates_per_sac_update=3", "reward.disc.batch_size=64"]
+        )
+        assert (cfg.reward.disc.updates_per_sac_update, cfg.reward.disc.batch_size) == (3, 64)

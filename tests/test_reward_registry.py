@@ -87,17 +87,3 @@ def test_a_new_reward_is_one_yaml_file(tmp_path, monkeypatch):
     finally:
         env.close()
         eval_env.close()
-
-
-def test_the_algo_config_sets_every_learned_rewards_batch():
-    """algo=sac_paper is the paper's batch of 1024 for SAC and for each discriminator side (Appendix E's one batch size;
-    the authors' code samples the SAC batch per side); elsewhere each side is 256 unless reward.disc.batch_size says."""
-    learned = [n for n in available_rewards() if is_learned(OmegaConf.create({"name": n}))]
-    with initialize_config_dir(config_dir=conf_dir(), version_base=None):
-        for name in learned:
-            paper = compose("learn", overrides=["algo=sac_paper", f"reward={name}"])
-            cpu = compose("learn", overrides=["algo=sac_cpu", f"reward={name}"])
-            assert paper.reward.disc.batch_size == paper.algo.batch_size == 1024, name
-            assert cpu.reward.disc.batch_size == 256, name
-        mine = compose("learn", overrides=["algo=sac_paper", "reward=drs", "reward.disc.batch_size=64"])
-        assert mine.reward.disc.batch_size == 64
