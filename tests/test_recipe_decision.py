@@ -98,3 +98,14 @@ def test_an_unfinished_run_keeps_its_arm_undecided(tmp_path):
     assert "DrS vs sparse: **no difference**" in text  # complete arms are compared
     text = decide(make_record(tmp_path / "b", finals, unfinished="drs-learn1_s0"))
     assert "The recipe: not decidable yet" in text and "DrS vs sparse: not decidable yet" in text
+
+
+def test_a_margin_of_exactly_0_2_counts(tmp_path):
+    """Successes are multiples of 1/20, so a difference of exactly 0.2 happens; in floating point these means differ by
+    0.19999999999999998, which the rule's ">= 0.2" must still count (both directions)."""
+    none = {a: [0.0] * 3 for a in ARMS}
+    drs = {"drs-learn0": [0.4, 0.4, 0.3], "drs-learn1": [0.3, 0.3, 0.3]}  # mean 1/3
+    text = decide(make_record(tmp_path / "a", {**none, **drs, "sparse": [0.15, 0.15, 0.1]}))  # mean 2/15
+    assert "DrS vs sparse: **DrS beats sparse** (final +0.20" in text
+    text = decide(make_record(tmp_path / "b", {**none, **drs, "dense": [0.55, 0.55, 0.5]}))  # mean 8/15
+    assert "DrS vs dense: **dense beats DrS** (final -0.20" in text
