@@ -114,6 +114,21 @@ def test_gail_tells_demonstrations_from_agent_transitions(use_action):
         DemoDiscriminatorLearner(reward(use_action=True, action_dim=2), demos=[states(5, good=True)])
 
 
+def test_gail_corrects_a_confidently_wrong_discriminator():
+    """Agent transitions scored as demonstrations beyond the reward's logit clip (12 > 10) still move the
+    discriminator: its loss sees the unclipped probability."""
+    r = reward()
+    learner = DemoDiscriminatorLearner(r, demos=[states(100, good=True)], batch_size=64, lr=1e-2)
+    replay = ReplayBuffer(storage=LazyTensorStorage(1000))
+    learner.attach(replay)
+    replay.extend(transitions(300, good=False))
+    with torch.no_grad():
+        r.classifier.net[-1].weight.zero_()
+        r.classifier.net[-1].bias.fill_(12.0)  # every input, the agent's included, scored "demonstration"
+    learner.update()
+    assert float(r.classifier.net[-1].bias) < 12.0
+
+
 def test_classifier_checkpoint_round_trip_and_reuse_checks(tmp_path):
     r = reward(use_action=True, action_dim=2, method="gail", metadata={"family": "synthetic"})
     r.classifier.trained.fill_(True)

@@ -25,7 +25,7 @@ from torchrl.objectives import GAILLoss
 
 from drs_torchrl.data.persistence import dump_buffer, load_buffer
 from drs_torchrl.learners.base import RewardLearner
-from drs_torchrl.transforms.classifier_reward import LOGIT_CLIP, ClassifierReward
+from drs_torchrl.transforms.classifier_reward import ClassifierReward
 
 
 def _bce_step_stats(logits: torch.Tensor, labels: torch.Tensor) -> tuple[torch.Tensor, TensorDict]:
@@ -185,15 +185,16 @@ class OfflineClassifierLearner(_TwoSetClassifier):
 
 
 class _ProbabilityOf(nn.Module):
-    """``D(x, a)`` as a probability, the output :class:`~torchrl.objectives.GAILLoss` expects."""
+    """``D(x, a)`` as a probability, the output :class:`~torchrl.objectives.GAILLoss` expects. Not clipped
+    (the reward clips its logits, not the loss): a clip here would leave a confidently wrong sample without
+    a gradient."""
 
     def __init__(self, reward: ClassifierReward):
         super().__init__()
         self.classifier = reward.classifier
 
     def forward(self, state_features: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        logits = self.classifier(torch.cat([state_features, action], -1)).clamp(-LOGIT_CLIP, LOGIT_CLIP)
-        return torch.sigmoid(logits.float())
+        return torch.sigmoid(self.classifier(torch.cat([state_features, action], -1)).float())
 
 
 class DemoDiscriminatorLearner(RewardLearner):
@@ -272,7 +273,7 @@ class DemoDiscriminatorLearner(RewardLearner):
             ).to(self.device)
             with self._autocast():
                 out = self.loss(batch)
-            loss = out["loss"] + (out["gp_loss"] if "gp_loss" in out.keys() else 0.0)
+            loss = out["loss"]  # GAILLoss adds the gradient penalty into it (its "gp_loss" is a detached copy)
             self._train_step(loss, (self.optim,))
             self.reward.classifier.trained.fill_(True)
             with torch.no_grad():  # one pass over both sides, for the logged accuracy
