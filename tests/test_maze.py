@@ -509,6 +509,23 @@ def test_n_step_windows_that_reach_the_goal_are_terminal():
     assert by_t[2] == (False, 104.0, 3) and by_t[6] == (False, 108.0, 3)
 
 
+def test_the_dqn_agents_state_round_trips_with_its_target_schedule():
+    """DQNUpdater.state_dict carries the target network's copy counter with the rest, so an agent loaded from it copies
+    its target at the same update as the one saved."""
+    from drs_torchrl.apps.maze import make_updater
+    from drs_torchrl.config_dir import conf_dir
+
+    with initialize_config_dir(config_dir=conf_dir(), version_base=None):
+        cfg = compose("maze", overrides=["phase=reuse", "reward.name=sparse", "dqn.n_steps=1"])
+    env = make_env("test", 2, 10, 0, "sparse")
+    saved, fresh = make_updater(cfg, env, None, False), make_updater(cfg, env, None, False)
+    for _ in range(3):
+        saved.target_updater.step()
+    fresh.load_state_dict(saved.state_dict())
+    assert fresh.target_updater.state_dict() == saved.target_updater.state_dict() != {}
+    assert fresh.state_dict()["target"] == saved.state_dict()["target"]
+
+
 def test_next_state_reward_reads_s_prime_and_a_move_into_a_wall_scores_as_staying():
     """``reward.input=next_state``: R(s') (Sec. 4.3). The reward table of a cell gives a blocked
     move the value of "stay", and the reward transform reads the observation under ``"next"``."""

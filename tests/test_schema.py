@@ -70,6 +70,13 @@ def test_a_resumed_config_is_checked_like_a_composed_one(tmp_path):
         validate_config(OmegaConf.load(path), "learn")
 
 
+def test_an_on_policy_algorithm_takes_no_random_warm_up():
+    """PPO's loss reads the log-probabilities of the policy that collected; random warm-up actions have none."""
+    with pytest.raises(ConfigError, match=r"algo.learning_starts must be 0 for algo=ppo .*got 1000"):
+        validate_config(composed("learn", "algo=ppo", "algo.learning_starts=1000"), "learn")
+    validate_config(composed("learn", "algo=sac_cpu", "algo.learning_starts=1000"), "learn")
+
+
 def test_settings_an_algorithm_does_not_have_are_not_demanded():
     cfg = composed("learn", "algo=ppo")
     assert "utd" not in cfg.algo and "tau" not in cfg.algo

@@ -48,6 +48,13 @@ def validate_config(cfg: DictConfig, phase: str) -> None:
             f"algo.buffer_size ({a.get('buffer_size')}) is smaller than algo.batch_size ({a.batch_size})",
         ),
         (phase in ("learn", "reuse"), f"phase must be learn or reuse, got {phase}"),
+        (
+            # without a replay buffer the algorithm is on-policy: the collector's random warm-up steps carry no
+            # log-probabilities of its policy, and PPO's ratios would read stale ones
+            "buffer_size" in a or int(a.get("learning_starts", 0)) == 0,
+            f"algo.learning_starts must be 0 for algo={a.get('name')} (on-policy: it trains on what its own policy "
+            f"collected), got {a.get('learning_starts')}",
+        ),
     ]
     for ok, msg in checks:
         if not ok:

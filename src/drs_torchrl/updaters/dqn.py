@@ -127,10 +127,13 @@ class DQNUpdater(Updater):
         return TensorDict({"dqn_loss": out["loss"].detach()}, []), rewards.detach()
 
     def state_dict(self) -> dict[str, Any]:
+        """The agent's state. Not the n-step windows the replay buffer's transform holds back at a batch's end:
+        no run resumes a DQN agent yet (a maze run keeps no training state), and one that did would lose them."""
         return {
             "loss": self.loss.state_dict(),
             "optimizers": {"dqn": self.optimizer.state_dict()},
             "explore": self.explore.state_dict(),
+            "target": self.target_updater.state_dict(),  # its counter: when the next hard copy comes
             "updates": self.updates,
             "owed_updates": self.budget.owed,
         }
@@ -139,6 +142,7 @@ class DQNUpdater(Updater):
         self.loss.load_state_dict(state["loss"])
         self.optimizer.load_state_dict(state["optimizers"]["dqn"])
         self.explore.load_state_dict(state["explore"])
+        self.target_updater.load_state_dict(state["target"])
         self.updates, self.budget.owed = int(state["updates"]), float(state["owed_updates"])
 
     def policy_checkpoint(self) -> dict[str, Any]:
