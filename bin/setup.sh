@@ -3,14 +3,16 @@
 #   1. a usable Vulkan driver (SAPIEN needs one even for state observations): if no GPU Vulkan
 #      driver is present, install Mesa's software driver (lavapipe) from bookworm-backports;
 #      Debian 12's own Mesa 22.3 is too old (no descriptorBindingPartiallyBound).
-#   2. .venv at the repository root with torch 2.13.0 (CPU wheel) first, then the project.
+#   2. .venv at the repository root (python3-venv installed if missing, as root) with torch 2.13.0 first (the
+#      CPU build where there is no NVIDIA GPU), then the project.
 # Usage: bin/setup.sh            (as root for step 1 on a machine without Vulkan)
-# Env:   DRS_SKIP_VULKAN=1 skips step 1; PYTHON=python3.11 picks the interpreter.
+# Env:   DRS_SKIP_VULKAN=1 skips step 1; PYTHON=python3.11 picks the interpreter; TORCH_CPU_INDEX another CPU index.
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
 PYTHON=${PYTHON:-python3}
 TORCH_VERSION=${TORCH_VERSION:-2.13.0}
+TORCH_CPU_INDEX=${TORCH_CPU_INDEX:-https://download.pytorch.org/whl/cpu}
 
 log() { printf '[setup] %s\n' "$*"; }
 
@@ -73,14 +75,42 @@ else
   install_lavapipe
 fi
 
+if ! "$PYTHON" -c "import ensurepip" 2>/dev/null; then  # Debian ships venv's pip apart: python3-venv
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+    pkg="python$("$PYTHON" -c 'import sys; print(f"{sys.version_info[0]}.{sys.version_info[1]}")')-venv"
+    log "installing $pkg (venv needs it)"
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$pkg" >/dev/null
+  else
+    log "$PYTHON cannot make a virtual environment with pip: install python3-venv (as root: apt-get install python3-venv)"
+    exit 1
+  fi
+fi
+if [ -x .venv/bin/python ] && ! .venv/bin/python -m pip --version >/dev/null 2>&1; then
+  log ".venv has no pip (an earlier venv creation failed half-way): making it again"
+  rm -rf .venv
+fi
 if [ ! -x .venv/bin/python ]; then
   log "creating .venv with $($PYTHON --version)"
   "$PYTHON" -m venv .venv
 fi
 py=.venv/bin/python
 if ! $py -c "import torch,sys; sys.exit(0 if torch.__version__.startswith('$TORCH_VERSION') else 1)" 2>/dev/null; then
-  log "installing torch==$TORCH_VERSION first (a CPU wheel where one is on disk)"
-  $py -m pip install -q "torch==$TORCH_VERSION"
+  # PyPI's Linux torch is the CUDA build (several GB of nvidia-* packages): without an NVIDIA GPU take the CPU build,
+  # from a wheel on disk (pip's find-links) or PyTorch's CPU index where that is reachable; else PyPI's
+  spec="torch==$TORCH_VERSION" extra=()
+  if ! command -v nvidia-smi >/dev/null; then
+    if $py -c "import urllib.request; urllib.request.urlopen('$TORCH_CPU_INDEX/', timeout=10)" 2>/dev/null; then
+      extra=(--extra-index-url "$TORCH_CPU_INDEX")
+    fi
+    if $py -m pip install -q "${extra[@]}" "torch==$TORCH_VERSION+cpu" 2>/dev/null; then
+      spec=""
+      log "installed torch==$TORCH_VERSION+cpu (the CPU build)"
+    fi
+  fi
+  if [ -n "$spec" ]; then
+    log "installing $spec"
+    $py -m pip install -q "$spec"
+  fi
 fi
 log "installing drs-torchrl with its test, locomotion (MuJoCo) and docs (mkdocs) extras"
 $py -m pip install -q -e ".[test,locomotion,docs]"

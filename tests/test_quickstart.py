@@ -88,6 +88,39 @@ def test_quickstart_plan_and_bad_settings(tmp_path):
     assert (other / "config.yaml").is_file()
 
 
+def test_an_unfinished_run_still_written_by_a_process_is_not_deleted(tmp_path):
+    """A re-run deletes an unfinished run's folder to start it again, but not while a process still writes it (a run
+    left behind by a quickstart killed outright): the run's own lock names it."""
+    from drs_torchrl.apps.quickstart import remove_run
+
+    held, free = tmp_path / "learn", tmp_path / "reuse-sparse"
+    free.mkdir()
+    (free / "train.csv").write_text("step\n")
+    remove_run(free)
+    assert not free.exists()
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys, time; from drs_torchrl.rundir import lock_run_dir; "
+            f"lock_run_dir({str(held)!r}); print('locked', flush=True); time.sleep(60)",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        (held / "train.csv").write_text("step\n")
+        with pytest.raises(QuickstartError, match=f"pid {holder.pid}"):
+            remove_run(held)
+        assert (held / "train.csv").is_file()
+    finally:
+        holder.kill()
+        holder.wait()
+    remove_run(held)  # its writer gone: the folder goes
+    assert not held.exists()
+
+
 def test_progress_prints_one_line_per_evaluation_without_a_terminal(capsys):
     from drs_torchrl.apps.quickstart import Job, Progress
 
