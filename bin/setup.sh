@@ -99,7 +99,7 @@ if ! $py -c "import torch,sys; sys.exit(0 if torch.__version__.startswith('$TORC
   # from a wheel on disk (pip's find-links) or PyTorch's CPU index where that is reachable; else PyPI's
   spec="torch==$TORCH_VERSION" extra=()
   if ! command -v nvidia-smi >/dev/null; then
-    if $py -c "import urllib.request; urllib.request.urlopen('$TORCH_CPU_INDEX/', timeout=10)" 2>/dev/null; then
+    if timeout 20 $py -c "import urllib.request; urllib.request.urlopen('$TORCH_CPU_INDEX/', timeout=10)" 2>/dev/null; then
       extra=(--extra-index-url "$TORCH_CPU_INDEX")
     fi
     if $py -m pip install -q "${extra[@]}" "torch==$TORCH_VERSION+cpu" 2>/dev/null; then
