@@ -111,7 +111,9 @@ def test_an_unfinished_run_still_written_by_a_process_is_not_deleted(tmp_path):
     try:
         assert holder.stdout.readline().strip() == "locked"
         (held / "train.csv").write_text("step\n")
-        with pytest.raises(QuickstartError, match=f"pid {holder.pid}"):
+        with pytest.raises(
+            QuickstartError, match=f"pid {holder.pid}\\); wait for it to end or stop it, or choose another"
+        ):
             remove_run(held)
         assert (held / "train.csv").is_file()
     finally:

@@ -104,7 +104,7 @@ def remove_run(run_dir: Path) -> None:
     if not run_dir.exists():
         return
     try:
-        lock_run_dir(run_dir, "or choose another out=DIR")
+        lock_run_dir(run_dir, "choose another out=DIR")
     except RunDirBusyError as exc:
         raise QuickstartError(f"{exc} (a run of an earlier quickstart still going?)") from None
     try:
