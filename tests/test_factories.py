@@ -5,7 +5,9 @@ import torch
 from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 
-from drs_torchrl.rewards import reward_setup
+from omegaconf import OmegaConf
+
+from drs_torchrl.rewards import available_rewards, is_learned, reward_setup
 from drs_torchrl.tasks import family_from_config
 from drs_torchrl.apps.cli import conf_dir
 from drs_torchrl.apps.factories import make_envs, make_replay_buffer
@@ -51,7 +53,9 @@ def test_reward_learner_steps_follow_the_algo_config(algo, batch, utd, disc_step
     reward's ``disc.updates_per_sac_update`` comes from the algo config, and so does its batch per side
     (``sac_paper``: the paper's 1024, Appendix E's one batch size); an explicit override wins."""
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
-        for reward in ("drs", "vice_raq", "gail", "gail_stages", "oril"):
+        learned = [n for n in available_rewards() if is_learned(OmegaConf.create({"name": n}))]
+        assert {"drs", "vice_raq", "gail", "gail_stages", "oril"} <= set(learned)
+        for reward in learned:  # every learned reward of the registry (conf/reward/)
             cfg = compose("learn", overrides=[f"algo={algo}", f"reward={reward}"])
             got = (
                 cfg.algo.batch_size,
