@@ -473,18 +473,19 @@ def test_status_counts_the_env_steps_and_hours_a_study_has_left(tmp_path, capsys
         json.dumps({"frames": 3000, "interrupted": False, "env_steps_per_s": 99.0})
     )
     _fake_run(root / "half_s0", "sparse", 0, [0.0], 4000, complete=True)  # resumable at 1000 of 4000
-    for d, v in (("done_s0", 2.0), ("half_s0", 1.0)):
-        lines = (root / d / "train.csv").read_text().splitlines()
+    # a run's speed is the median of its log rows once it has logged SPEED_ROWS of them (the warm-up rows run
+    # 2-3x faster); a run with fewer rows does not count while another run or the record says more
+    for d, speeds in (("done_s0", [9.0, 8.0, 2.0, 2.0, 2.0, 1.9]), ("half_s0", [7.0])):
         (root / d / "train.csv").write_text(
-            "\n".join([lines[0] + ",env_steps_per_s"] + [x + f",{v}" for x in lines[1:]]) + "\n"
+            "step,env_steps_per_s\n" + "".join(f"{1000 * (i + 1)},{v}\n" for i, v in enumerate(speeds))
         )
     _, runs = load_study(study)
     states = {"done_s0": "finished", "half_s0": "resumable", "new_s0": "new", "learn_s0": "new"}
     line = work_left(root, None, runs, states, jobs=2)
-    # 3000 + 9000 + 2000 = 14,000 steps at the median of 2.0 and 1.0 env steps/s (the upper one of two): 7000 s
+    # 3000 + 9000 + 2000 = 14,000 steps at done_s0's median row, 2.0 env steps/s: 7000 s
     assert line.startswith("left: 3 of 4 runs, at most 14,000 env steps (phase-1 runs stop early")
     assert (
-        "at 2.0 env steps/s per run (median of 2 run directories here) about 1.9 h of runs, 58 min with --jobs 2"
+        "at 2.0 env steps/s per run (median of 1 run directories here) about 1.9 h of runs, 58 min with --jobs 2"
         in line
     )
     assert main([str(study), "--status"]) == 0
@@ -498,6 +499,15 @@ def test_status_counts_the_env_steps_and_hours_a_study_has_left(tmp_path, capsys
         "at most 15,000 env steps" in line
         and "at 50.0 env steps/s per run (median of 1 recorded runs) about 5 min of runs" in line
     )
+    # only just-started runs here and no record: their last rows, said to be an upper bound
+    fresh = {"done_s0": "finished", "half_s0": "new", "new_s0": "new", "learn_s0": "new"}
+    (root / "done_s0" / "train.csv").write_text("step,env_steps_per_s\n1000,9.0\n")
+    line = work_left(root, None, runs, fresh)
+    assert "at 9.0 env steps/s per run (median of 2 run directories here, under 5 log rows each" in line
+    assert "an upper bound" in line
+    # ... and with a record, the record's finished runs instead
+    line = work_left(root, out, runs, fresh)
+    assert "at 50.0 env steps/s per run (median of 1 recorded runs)" in line
     assert work_left(root, None, runs, dict.fromkeys(states, "finished")) == "left: nothing, all 4 runs done"
 
 

@@ -479,17 +479,30 @@ def _summary(run_dir: Path) -> dict:
         return {}
 
 
-def _last_speed(run_dir: Path) -> float | None:
-    """The last logged ``env_steps_per_s`` of a run directory's ``train.csv``, or None."""
+def _logged_speeds(run_dir: Path) -> list[float]:
+    """Every positive ``env_steps_per_s`` a run directory's ``train.csv`` logged (one per log row), in order."""
     f = run_dir / "train.csv"
     lines = f.read_text().strip().splitlines() if f.is_file() else []
     if len(lines) < 2 or "env_steps_per_s" not in lines[0].split(","):
-        return None
-    try:
-        v = float(lines[-1].split(",")[lines[0].split(",").index("env_steps_per_s")])
-    except (ValueError, IndexError):
-        return None
-    return v if v > 0 else None
+        return []
+    col, out = lines[0].split(",").index("env_steps_per_s"), []
+    for line in lines[1:]:
+        try:
+            v = float(line.split(",")[col])
+        except (ValueError, IndexError):
+            continue
+        if v > 0:
+            out.append(v)
+    return out
+
+
+# a run's first rows are its random warm-up (no updates: 2-3x its speed later), so a run directory's speed counts
+# once it has logged this many rows; until then the record's finished runs say more
+SPEED_ROWS = 5
+
+
+def _median(values: list[float]) -> float:
+    return sorted(values)[len(values) // 2]
 
 
 def _duration(seconds: float) -> str:
@@ -498,15 +511,19 @@ def _duration(seconds: float) -> str:
 
 def work_left(root: Path, record: Path | None, runs: list[Run], states: dict[str, str], jobs: int = 2) -> str:
     """One line on what the study still costs: runs and env steps left, and the hours they take at the
-    study's own measured speed: the median last ``env_steps_per_s`` of the run directories on this machine
-    (their ``train.csv``), else of the record's ``summary.json`` files (a fresh checkout: other machines).
+    study's own measured speed: the median over the run directories on this machine of each one's median logged
+    ``env_steps_per_s`` (their ``train.csv``, once a run has logged :data:`SPEED_ROWS` rows), else of the record's
+    ``summary.json`` files (a fresh checkout: other machines), else the last rows of runs that have just started.
 
     Written because a study spans sessions and days; planning one needs its remaining run-hours."""
-    speeds, where = [_last_speed(root / r.name) for r in runs], "run directories here"
-    speeds = [v for v in speeds if v]
+    logged = [_logged_speeds(root / r.name) for r in runs]
+    speeds, where = [_median(v) for v in logged if len(v) >= SPEED_ROWS], "run directories here"
     if not speeds and record is not None:
         speeds = [_summary(record / "run_files" / r.name).get("env_steps_per_s") for r in runs]
         speeds, where = [float(v) for v in speeds if isinstance(v, (int, float)) and v > 0], "recorded runs"
+    if not speeds:  # only runs that have just started: their warm-up rows overstate the speed
+        speeds = [v[-1] for v in logged if v]
+        where = f"run directories here, under {SPEED_ROWS} log rows each: warm-up runs faster, an upper bound"
     left = [r for r in runs if states[r.name] not in DONE]
     steps, unsized = 0, []
     for r in left:
@@ -528,7 +545,7 @@ def work_left(root: Path, record: Path | None, runs: list[Run], states: dict[str
     if unsized:
         line += f", not counting {len(unsized)} run(s) without a total_frames ({', '.join(unsized)})"
     if speeds:
-        v = sorted(speeds)[len(speeds) // 2]
+        v = _median(speeds)
         line += (
             f"; at {v:.1f} env steps/s per run (median of {len(speeds)} {where}) about "
             f"{_duration(steps / v)} of runs, {_duration(steps / v / max(jobs, 1))} with --jobs {max(jobs, 1)}"
