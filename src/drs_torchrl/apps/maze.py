@@ -43,7 +43,6 @@ diagnostics and report live in :mod:`drs_torchrl.apps.maze_analysis`.
 
 from __future__ import annotations
 
-import functools
 import json
 import os
 import sys
@@ -93,7 +92,6 @@ from drs_torchrl.rewards import available_rewards, reused_method, reward_entry
 from drs_torchrl.rundir import clear_for_new_run, lock_run_dir
 from drs_torchrl.transforms import ClassifierReward, DrSReward, SemiSparseReward, StageIndicator, load_reward
 from drs_torchrl.updaters.dqn import DQNUpdater
-from drs_torchrl.updaters.ppo import make_ppo_updater
 
 REWARD_INPUTS = ("state_action", "next_state")  # R(s, a) as the appendix's tabular analysis, or R(s') as Sec. 4.3
 FAMILY = "three_room_maze"
@@ -559,23 +557,11 @@ def algo_config(cfg: DictConfig) -> DictConfig:
 
 def make_updater(cfg: DictConfig, env, drs, learn: bool):
     """The run's :class:`~drs_torchrl.updaters.base.Updater`: DQN (the paper's maze agent) or PPO."""
-    if cfg.get("agent", "dqn") == "ppo":
-        p = cfg.ppo
-        return make_ppo_updater(
-            env,
-            optim=functools.partial(torch.optim.Adam, lr=float(p.lr)),
-            hidden=list(p.hidden),
-            policy_in_keys=["observation"],
-            gamma=float(p.gamma),
-            lmbda=float(p.lmbda),
-            epochs=int(p.epochs),
-            minibatch_size=int(p.batch_size),
-            clip_epsilon=float(p.clip_epsilon),
-            entropy_coeff=float(p.entropy_coeff),
-            critic_coeff=float(p.critic_coeff),
-            max_grad_norm=float(p.grad_clip),
-            # phase 1: the batch's reward from the discriminator of the moment (the env's is the collection-time one)
-            reward=StateActionReward(drs, cfg.coords, float(p.get("reward_scale", 1.0))) if (learn and drs) else None,
+    if cfg.get("agent", "dqn") == "ppo":  # conf/maze.yaml's ppo.updater, built as drs-learn builds conf/algo/ppo.yaml's
+        # phase 1: the batch's reward from the discriminator of the moment (the env's is the collection-time one)
+        scale = float(cfg.ppo.get("reward_scale", 1.0))
+        return instantiate(cfg.ppo.updater)(
+            env, reward=StateActionReward(drs, cfg.coords, scale) if (learn and drs) else None
         )
     actor = make_qnet(cfg, env.action_spec)
     loss, target, opt = make_dqn_loss(cfg, actor, env.action_spec)
