@@ -526,6 +526,37 @@ def test_the_dqn_agents_state_round_trips_with_its_target_schedule():
     assert fresh.target_updater.state_dict() == saved.target_updater.state_dict()
 
 
+def test_the_maze_agents_are_built_from_their_config_and_every_setting_reaches_them():
+    """``dqn.updater`` / ``ppo.updater`` (conf/maze.yaml) are built by ``hydra.utils.instantiate``: an override of any
+    ``dqn.*`` / ``ppo.*`` setting must reach the TorchRL object it configures."""
+    from drs_torchrl.apps.maze import make_updater
+    from drs_torchrl.config_dir import conf_dir
+
+    dqn = ["dqn.lr=0.002", "dqn.gamma=0.9", "dqn.double_dqn=false", "dqn.loss_function=l2", "dqn.eps_init=0.5",
+           "dqn.eps_end=0.2", "dqn.eps_anneal_frac=0.25", "total_frames=1000", "dqn.utd=0.5", "dqn.learning_starts=7",
+           "dqn.grad_clip=3", "dqn.hidden=[8]", "dqn.target_update.value_network_update_interval=9"]  # fmt: skip
+    ppo = ["agent=ppo", "ppo.lr=0.002", "ppo.gamma=0.9", "ppo.lmbda=0.5", "ppo.epochs=3", "ppo.batch_size=32",
+           "ppo.clip_epsilon=0.1", "ppo.entropy_coeff=0.05", "ppo.critic_coeff=2.0", "ppo.grad_clip=0.3", "ppo.hidden=[8]"]  # fmt: skip
+    with initialize_config_dir(config_dir=conf_dir(), version_base=None):
+        d = compose("maze", overrides=["phase=reuse", "reward.name=sparse", *dqn])
+        p = compose("maze", overrides=["phase=reuse", "reward.name=sparse", *ppo])
+    env = make_env("test", 2, 10, 0, "sparse")
+    u = make_updater(d, env, None, False)
+    assert u.optimizer.defaults["lr"] == 0.002 and u.loss.value_estimator.gamma == pytest.approx(0.9)
+    assert u.loss.double_dqn is False and u.loss.loss_function == "l2" and u.grad_clip == 3.0
+    assert float(u.explore.eps_init) == 0.5 and float(u.explore.eps_end) == pytest.approx(0.2)
+    assert u.explore.annealing_num_steps == 250 and u.budget.per_frame == 0.5 and u.learning_starts == 7
+    assert u.target_updater.value_network_update_interval == 9 and u.n_step  # dqn.n_steps=5: windows
+    assert [m.out_features for m in u.actor.modules() if isinstance(m, torch.nn.Linear)] == [8, 5]
+    v = make_updater(p, env, None, False)
+    assert v.optimizer.defaults["lr"] == 0.002 and v.epochs == 3 and v.minibatch_size == 32 and v.max_grad_norm == 0.3
+    assert float(v.advantage.gamma) == pytest.approx(0.9) and float(v.advantage.lmbda) == pytest.approx(0.5)
+    assert float(v.loss.clip_epsilon) == pytest.approx(0.1, abs=1e-6) and float(v.loss.entropy_coeff) == pytest.approx(
+        0.05
+    )
+    assert float(v.loss.critic_coeff) == 2.0 and v.hidden == [8]
+
+
 def test_next_state_reward_reads_s_prime_and_a_move_into_a_wall_scores_as_staying():
     """``reward.input=next_state``: R(s') (Sec. 4.3). The reward table of a cell gives a blocked
     move the value of "stay", and the reward transform reads the observation under ``"next"``."""

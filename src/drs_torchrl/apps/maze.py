@@ -30,8 +30,9 @@ Choices the paper leaves open, or where this script departs from it (all in ``co
   ``eval_success`` (one greedy episode in each of ``eval.episodes`` grids) is the unbiased figure.
 
 It is a DQN script in the shape of TorchRL's ``sota-implementations``: ``make_*`` factories
-(:func:`make_env`, :func:`make_qnet`, :func:`make_exploration`, :func:`make_replay_buffer`,
-:func:`make_dqn_loss`, :func:`make_reward`) and one loop in :func:`train`. The TorchRL pieces are the
+(:func:`make_env`, :func:`make_replay_buffer`, :func:`make_reward`, and the agent from ``conf/maze.yaml``'s
+``dqn.updater`` / ``ppo.updater``: :func:`~drs_torchrl.updaters.dqn.make_dqn_updater`,
+:func:`~drs_torchrl.updaters.ppo.make_ppo_updater`) and one loop in :func:`train`. The TorchRL pieces are the
 batched :class:`~drs_torchrl.envs.maze.ThreeRoomMaze` with a :class:`~drs_torchrl.transforms.StageIndicator`,
 a ``Collector``, a ``ReplayBuffer`` (n-step windows, or one-step samples whose learned reward is
 recomputed from the current discriminator), a ``QValueActor`` with an ``EGreedyModule``, ``DQNLoss``
@@ -61,8 +62,6 @@ from torchrl.data import LazyTensorStorage, ReplayBuffer
 from torchrl.envs import TransformedEnv
 from torchrl.envs.transforms import MultiStepTransform, RewardScaling, Transform
 from torchrl.envs.utils import ExplorationType, set_exploration_type
-from torchrl.modules import MLP, EGreedyModule, QValueActor
-from torchrl.objectives import DQNLoss, ValueEstimators
 
 from drs_torchrl.provenance import code_version
 from drs_torchrl.envs.maze import ACTIONS, GATES, MOVES, OBS_DIMS, ThreeRoomMaze, convert_observation, observation
@@ -91,7 +90,6 @@ from drs_torchrl.loop import EpisodeWindow, Progress, Schedule, run_algorithm1
 from drs_torchrl.rewards import available_rewards, reused_method, reward_entry
 from drs_torchrl.rundir import clear_for_new_run, lock_run_dir
 from drs_torchrl.transforms import ClassifierReward, DrSReward, SemiSparseReward, StageIndicator, load_reward
-from drs_torchrl.updaters.dqn import DQNUpdater
 
 REWARD_INPUTS = ("state_action", "next_state")  # R(s, a) as the appendix's tabular analysis, or R(s') as Sec. 4.3
 FAMILY = "three_room_maze"
@@ -200,16 +198,6 @@ def make_env(
     if reward_scale != 1.0 and reward_name != "semi_sparse":
         env.append_transform(RewardScaling(loc=0.0, scale=float(reward_scale)))
     return env
-
-
-def make_qnet(cfg: DictConfig, action_spec) -> QValueActor:
-    net = MLP(
-        in_features=OBS_DIMS[cfg.coords],
-        out_features=len(ACTIONS),
-        num_cells=list(cfg.dqn.hidden),
-        activation_class=torch.nn.ReLU,
-    )
-    return QValueActor(net, in_keys=["observation"], spec=action_spec)
 
 
 def evaluate_greedy(actor, env: TransformedEnv) -> dict[str, float]:
@@ -529,26 +517,6 @@ def make_replay_buffer(cfg: DictConfig, drs: DrSReward | None) -> ReplayBuffer:
     )
 
 
-def make_exploration(cfg: DictConfig, action_spec) -> EGreedyModule:
-    d = cfg.dqn
-    return EGreedyModule(
-        action_spec,
-        eps_init=d.eps_init,
-        eps_end=d.eps_end,
-        annealing_num_steps=max(1, int(d.eps_anneal_frac * cfg.total_frames)),
-    )
-
-
-def make_dqn_loss(cfg: DictConfig, actor: QValueActor, action_spec):
-    """TorchRL's ``DQNLoss`` (double DQN by default) with its target updater and Adam."""
-    d = cfg.dqn
-    loss = DQNLoss(
-        actor, action_space=action_spec, delay_value=True, double_dqn=bool(d.double_dqn), loss_function=d.loss_function
-    )
-    loss.make_value_estimator(ValueEstimators.TD0, gamma=float(d.gamma))
-    return loss, instantiate(d.target_update)(loss), torch.optim.Adam(loss.parameters(), lr=float(d.lr))
-
-
 # ----------------------------------------------------------------------------- the algorithm
 def algo_config(cfg: DictConfig) -> DictConfig:
     """The settings of the run's agent: ``cfg.dqn`` (``agent=dqn``) or ``cfg.ppo`` (``agent=ppo``)."""
@@ -563,19 +531,13 @@ def make_updater(cfg: DictConfig, env, drs, learn: bool):
         return instantiate(cfg.ppo.updater)(
             env, reward=StateActionReward(drs, cfg.coords, scale) if (learn and drs) else None
         )
-    actor = make_qnet(cfg, env.action_spec)
-    loss, target, opt = make_dqn_loss(cfg, actor, env.action_spec)
+    # conf/maze.yaml's dqn.updater; the app adds the replay buffer (single steps or n-step windows) and the annealing
+    # length (a fraction of the run)
     d = cfg.dqn
-    return DQNUpdater(
-        actor,
-        make_exploration(cfg, env.action_spec),
-        loss,
-        target,
-        opt,
+    return instantiate(d.updater)(
+        env,
         make_replay_buffer(cfg, drs),
-        utd=float(d.utd),
-        learning_starts=int(d.learning_starts),
-        grad_clip=float(d.grad_clip),
+        eps_anneal_steps=int(float(d.eps_anneal_frac) * int(cfg.total_frames)),
         n_step=int(d.n_steps) > 1,
     )
 

@@ -5,12 +5,14 @@ when the step was taken)."""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable
 
 import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictSequential
 from torchrl.data import ReplayBuffer
+from torchrl.modules import MLP, EGreedyModule, QValueActor
+from torchrl.objectives import DQNLoss, ValueEstimators
 
 from drs_torchrl.updaters.base import LearnerStep, UpdateBudget, Updater, check_finite
 
@@ -147,3 +149,49 @@ class DQNUpdater(Updater):
 
     def policy_checkpoint(self) -> dict[str, Any]:
         return {"qnet": self.actor.state_dict()}
+
+
+def make_dqn_updater(
+    env,
+    replay: ReplayBuffer,
+    *,
+    optim: Callable,
+    hidden,
+    gamma: float,
+    target_update: Callable,
+    eps_init: float,
+    eps_end: float,
+    eps_anneal_steps: int,
+    utd: float,
+    learning_starts: int,
+    double_dqn: bool = True,
+    loss_function: str = "l2",
+    grad_clip: float = 10.0,
+    n_step: bool = False,
+) -> DQNUpdater:
+    """A :class:`DQNUpdater` for ``env``'s specs (a one-hot action): a ``QValueActor`` over an MLP of
+    ``"observation"``, TorchRL's ``DQNLoss`` with a TD(0) estimator (double DQN by default), ``target_update(loss)``
+    (``HardUpdate`` / ``SoftUpdate``), ``optim(parameters)`` and epsilon-greedy annealed over ``eps_anneal_steps``
+    env steps. ``replay`` holds single steps, or n-step windows with ``n_step=True``."""
+    net = MLP(
+        in_features=int(env.observation_spec["observation"].shape[-1]),
+        out_features=int(env.action_spec.shape[-1]),
+        num_cells=list(hidden),
+        activation_class=torch.nn.ReLU,
+    )
+    actor = QValueActor(net, in_keys=["observation"], spec=env.action_spec)
+    loss = DQNLoss(
+        actor, action_space=env.action_spec, delay_value=True, double_dqn=bool(double_dqn), loss_function=loss_function
+    )
+    loss.make_value_estimator(ValueEstimators.TD0, gamma=float(gamma))
+    target, optimizer = target_update(loss), optim(loss.parameters())
+    explore = EGreedyModule(
+        env.action_spec,
+        eps_init=float(eps_init),
+        eps_end=float(eps_end),
+        annealing_num_steps=max(1, int(eps_anneal_steps)),
+    )
+    return DQNUpdater(
+        actor, explore, loss, target, optimizer, replay,
+        utd=float(utd), learning_starts=int(learning_starts), grad_clip=float(grad_clip), n_step=bool(n_step),
+    )  # fmt: skip
