@@ -167,3 +167,46 @@ and `results/generated/planner.demos` is written by the command above."""
         + "# made by: drs-demos --out results/made.demos; see results/missing/README.md\n"
     )
     assert missing_paths(study) == ["results/no_record", "results/gone/reward.pt", "results/missing/README.md"]
+
+
+def _drs_imports(script: Path) -> list[tuple[str, str | None]]:
+    """The (module, name) pairs a script imports from drs_torchrl (name None: ``import drs_torchrl.x``)."""
+    import ast
+
+    out = []
+    for node in ast.walk(ast.parse(script.read_text())):
+        if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("drs_torchrl"):
+            out += [(node.module, a.name) for a in node.names]
+        elif isinstance(node, ast.Import):
+            out += [(a.name, None) for a in node.names if a.name.startswith("drs_torchrl")]
+    return out
+
+
+def _missing_imports(scripts: list[Path], root: Path = REPO) -> list[str]:
+    import importlib
+
+    bad = []
+    for script in scripts:
+        for module, name in _drs_imports(script):
+            try:
+                mod = importlib.import_module(module)
+            except ImportError as e:
+                bad.append(f"{script.relative_to(root)}: {module} ({e})")
+                continue
+            if name is not None and name != "*" and not hasattr(mod, name):
+                try:  # a submodule imported by name
+                    importlib.import_module(f"{module}.{name}")
+                except ImportError:
+                    bad.append(f"{script.relative_to(root)}: {module}.{name}")
+    return bad
+
+
+def test_the_results_scripts_import_only_what_the_package_has(tmp_path):
+    """The committed analysis scripts (results/**/*.py) are run on their records long after they were written: every
+    name they import from drs_torchrl must still exist (a refactor that removes one must update them)."""
+    scripts = sorted((REPO / "results").rglob("*.py"))
+    assert len(scripts) > 10 and sum(len(_drs_imports(s)) for s in scripts) > 10
+    assert not _missing_imports(scripts), "\n".join(_missing_imports(scripts))
+    broken = tmp_path / "old.py"  # the check itself: a name the package no longer has
+    broken.write_text("from drs_torchrl.apps.maze import make_env, make_qnet\n")
+    assert _missing_imports([broken], tmp_path) == ["old.py: drs_torchrl.apps.maze.make_qnet"]

@@ -20,7 +20,8 @@ from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from drs_torchrl.envs.maze import ACTIONS, MOVES, ThreeRoomMaze, decode_cells, observation
-from drs_torchrl.apps.maze import make_env, make_qnet
+from drs_torchrl.apps.maze import make_env
+from drs_torchrl.updaters.dqn import q_network
 
 torch.set_num_threads(1)
 DISTANCES = (1, 2, 5, 10, 20, 30)
@@ -88,7 +89,7 @@ def main(runs: list[str]) -> None:
         cfg = OmegaConf.load(f"{run}/config.yaml")
         map_name = cfg.map or ("train" if cfg.phase == "learn" else "test")
         env = make_env(map_name, 1, int(cfg.max_steps), 0, "sparse", coords=cfg.coords)
-        actor = make_qnet(cfg, env.action_spec)
+        actor = q_network(env, cfg.dqn.hidden)
         actor.load_state_dict(torch.load(f"{run}/policy.pt"))
         print(
             f"{run}: phase {cfg.phase}, map {map_name}, reward {cfg.reward.name}, coords {cfg.coords}, "

@@ -151,6 +151,18 @@ class DQNUpdater(Updater):
         return {"qnet": self.actor.state_dict()}
 
 
+def q_network(env, hidden) -> QValueActor:
+    """The Q-network: a ``QValueActor`` over an MLP (ReLU) from ``"observation"`` to one value per action of ``env``'s
+    one-hot action spec (what ``policy.pt`` of a maze run holds)."""
+    net = MLP(
+        in_features=int(env.observation_spec["observation"].shape[-1]),
+        out_features=int(env.action_spec.shape[-1]),
+        num_cells=list(hidden),
+        activation_class=torch.nn.ReLU,
+    )
+    return QValueActor(net, in_keys=["observation"], spec=env.action_spec)
+
+
 def make_dqn_updater(
     env,
     replay: ReplayBuffer,
@@ -169,17 +181,11 @@ def make_dqn_updater(
     grad_clip: float = 10.0,
     n_step: bool = False,
 ) -> DQNUpdater:
-    """A :class:`DQNUpdater` for ``env``'s specs (a one-hot action): a ``QValueActor`` over an MLP of
-    ``"observation"``, TorchRL's ``DQNLoss`` with a TD(0) estimator (double DQN by default), ``target_update(loss)``
-    (``HardUpdate`` / ``SoftUpdate``), ``optim(parameters)`` and epsilon-greedy annealed over ``eps_anneal_steps``
-    env steps. ``replay`` holds single steps, or n-step windows with ``n_step=True``."""
-    net = MLP(
-        in_features=int(env.observation_spec["observation"].shape[-1]),
-        out_features=int(env.action_spec.shape[-1]),
-        num_cells=list(hidden),
-        activation_class=torch.nn.ReLU,
-    )
-    actor = QValueActor(net, in_keys=["observation"], spec=env.action_spec)
+    """A :class:`DQNUpdater` for ``env``'s specs (a one-hot action): the :func:`q_network`, TorchRL's ``DQNLoss``
+    with a TD(0) estimator (double DQN by default), ``target_update(loss)`` (``HardUpdate`` / ``SoftUpdate``),
+    ``optim(parameters)`` and epsilon-greedy annealed over ``eps_anneal_steps`` env steps. ``replay`` holds single
+    steps, or n-step windows with ``n_step=True``."""
+    actor = q_network(env, hidden)
     loss = DQNLoss(
         actor, action_space=env.action_spec, delay_value=True, double_dqn=bool(double_dqn), loss_function=loss_function
     )
