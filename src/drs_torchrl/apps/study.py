@@ -69,6 +69,7 @@ import os
 import re
 import shutil
 import signal
+import statistics
 import subprocess
 import sys
 import time
@@ -496,13 +497,10 @@ def _logged_speeds(run_dir: Path) -> list[float]:
     return out
 
 
-# a run's first rows are its random warm-up (no updates: 2-3x its speed later), so a run directory's speed counts
-# once it has logged this many rows; until then the record's finished runs say more
+# a run's first rows are its random warm-up, with no updates, several times its later speed (stack_cube dense_s1's
+# train.csv: 283 and 256 env steps/s, then about 60), so a run directory's speed counts once it has logged this many
+# rows; until then the record's finished runs say more
 SPEED_ROWS = 5
-
-
-def _median(values: list[float]) -> float:
-    return sorted(values)[len(values) // 2]
 
 
 def _duration(seconds: float) -> str:
@@ -517,7 +515,7 @@ def work_left(root: Path, record: Path | None, runs: list[Run], states: dict[str
 
     Written because a study spans sessions and days; planning one needs its remaining run-hours."""
     logged = [_logged_speeds(root / r.name) for r in runs]
-    speeds, where = [_median(v) for v in logged if len(v) >= SPEED_ROWS], "run directories here"
+    speeds, where = [statistics.median_high(v) for v in logged if len(v) >= SPEED_ROWS], "run directories here"
     if not speeds and record is not None:
         speeds = [_summary(record / "run_files" / r.name).get("env_steps_per_s") for r in runs]
         speeds, where = [float(v) for v in speeds if isinstance(v, (int, float)) and v > 0], "recorded runs"
@@ -545,7 +543,7 @@ def work_left(root: Path, record: Path | None, runs: list[Run], states: dict[str
     if unsized:
         line += f", not counting {len(unsized)} run(s) without a total_frames ({', '.join(unsized)})"
     if speeds:
-        v = _median(speeds)
+        v = statistics.median_high(speeds)
         line += (
             f"; at {v:.1f} env steps/s per run (median of {len(speeds)} {where}) about "
             f"{_duration(steps / v)} of runs, {_duration(steps / v / max(jobs, 1))} with --jobs {max(jobs, 1)}"
