@@ -502,12 +502,19 @@ def test_status_counts_the_env_steps_and_hours_a_study_has_left(tmp_path, capsys
     # only just-started runs here and no record: their last rows, said to be an upper bound
     fresh = {"done_s0": "finished", "half_s0": "new", "new_s0": "new", "learn_s0": "new"}
     (root / "done_s0" / "train.csv").write_text("step,env_steps_per_s\n1000,9.0\n")
+    (root / "done_s0" / "summary.json").write_text(json.dumps({"frames": 3000, "interrupted": False}))
     line = work_left(root, None, runs, fresh)
     assert "at 9.0 env steps/s per run (median of 2 run directories here, under 5 log rows each" in line
     assert "an upper bound" in line
     # ... and with a record, the record's finished runs instead
     line = work_left(root, out, runs, fresh)
     assert "at 50.0 env steps/s per run (median of 1 recorded runs)" in line
+    # a short run that finished here counts at its own summary's speed, not its warm-up row
+    (root / "done_s0" / "summary.json").write_text(
+        json.dumps({"frames": 3000, "interrupted": False, "env_steps_per_s": 99.0})
+    )
+    line = work_left(root, out, runs, fresh)
+    assert "at 99.0 env steps/s per run (median of 1 run directories here)" in line
     assert work_left(root, None, runs, dict.fromkeys(states, "finished")) == "left: nothing, all 4 runs done"
 
 

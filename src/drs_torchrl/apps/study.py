@@ -510,12 +510,17 @@ def _duration(seconds: float) -> str:
 def work_left(root: Path, record: Path | None, runs: list[Run], states: dict[str, str], jobs: int = 2) -> str:
     """One line on what the study still costs: runs and env steps left, and the hours they take at the
     study's own measured speed: the median over the run directories on this machine of each one's median logged
-    ``env_steps_per_s`` (their ``train.csv``, once a run has logged :data:`SPEED_ROWS` rows), else of the record's
+    ``env_steps_per_s`` (their ``train.csv``, once a run has logged :data:`SPEED_ROWS` rows; a shorter finished run's
+    ``summary.json``), else of the record's
     ``summary.json`` files (a fresh checkout: other machines), else the last rows of runs that have just started.
 
     Written because a study spans sessions and days; planning one needs its remaining run-hours."""
     logged = [_logged_speeds(root / r.name) for r in runs]
     speeds, where = [statistics.median_high(v) for v in logged if len(v) >= SPEED_ROWS], "run directories here"
+    for r, v in zip(runs, logged):  # a short run that finished here: its summary's speed, not the warm-up fallback
+        measured = _summary(root / r.name).get("env_steps_per_s") if states[r.name] in DONE else None
+        if len(v) < SPEED_ROWS and isinstance(measured, (int, float)) and measured > 0:
+            speeds.append(float(measured))
     if not speeds and record is not None:
         speeds = [_summary(record / "run_files" / r.name).get("env_steps_per_s") for r in runs]
         speeds, where = [float(v) for v in speeds if isinstance(v, (int, float)) and v > 0], "recorded runs"
