@@ -66,6 +66,79 @@ def test_bad_demo_directories(tmp_path):
         load_demos(tmp_path / "other")
 
 
+def fake_demos(*seeds):
+    """Tiny demonstrations of one state per seed (what save/load need; no simulation)."""
+    n = len(seeds)
+    states = TensorDict({"observation": torch.zeros(n, 3), "episode": torch.arange(n)}, [n])
+    meta = {"format": "drs-torchrl/demos", "version": 1, "family": "pick_cube", "variant": "cube_2cm"}
+    return states, {**meta, "stage_keys": [], "shapes": {}, "episodes": n, "lengths": [1] * n, "seeds": list(seeds)}
+
+
+def another_process_saves_meanwhile(monkeypatch, out, seeds, replace=False):
+    """Make the next save_demos call's write be interrupted, between its temporary folder's fsync and its swap,
+    by a whole save of ``seeds`` to ``out`` by another process (another pid)."""
+    import os
+
+    from drs_torchrl.demos import store
+
+    real_fsync, pid = store.fsync_tree, os.getpid()
+
+    def fsync_then_other_save(path):
+        real_fsync(path)
+        monkeypatch.setattr(store, "fsync_tree", real_fsync)
+        with monkeypatch.context() as m:
+            m.setattr(os, "getpid", lambda: pid + 1)
+            store.save_demos(*fake_demos(*seeds), out, replace=replace)
+
+    monkeypatch.setattr(store, "fsync_tree", fsync_then_other_save)
+
+
+def test_demos_written_meanwhile_are_not_replaced_without_replace_and_the_new_ones_are_kept(tmp_path, monkeypatch):
+    """drs-demos --out X twice at once, without --force: neither recording is lost, nor silently replaced."""
+    from drs_torchrl.demos import DemosOutTakenError
+
+    out = tmp_path / "my.demos"
+    another_process_saves_meanwhile(monkeypatch, out, (7, 8))
+    with pytest.raises(DemosOutTakenError) as e:
+        save_demos(*fake_demos(0), out, replace=False)
+    kept = tmp_path / "my-2.demos"
+    assert e.value.kept == kept
+    assert str(e.value) == (
+        f"--out {out} already holds demonstrations (written by another process while these were recorded?); "
+        f"the new demonstrations are saved at {kept} instead: use that path, pass --force to replace the earlier "
+        "ones, or give another --out"
+    )
+    assert load_demos(out)[1]["seeds"] == [7, 8] and load_demos(kept)[1]["seeds"] == [0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["my-2.demos", "my.demos"]  # no temporaries left
+
+
+def test_demos_replace_those_written_meanwhile_only_when_told(tmp_path, monkeypatch):
+    out = tmp_path / "my.demos"
+    another_process_saves_meanwhile(monkeypatch, out, (7, 8))
+    assert save_demos(*fake_demos(0), out, replace=True) == out
+    assert load_demos(out)[1]["seeds"] == [0]
+    assert [p.name for p in tmp_path.iterdir()] == ["my.demos"]
+
+
+def test_drs_demos_out_keeps_demonstrations_another_process_wrote_meanwhile(tmp_path, monkeypatch, capsys):
+    """The repro: drs-demos --out X while another drs-demos writes X; the second exits 2, both recordings kept."""
+    from drs_torchrl.apps import demos as app
+
+    out = tmp_path / "dd" / "my.demos"
+
+    def record_while_another_process_saves(fam, variant, num, *, seed, **kw):
+        save_demos(*fake_demos(0), out)  # the first drs-demos finishes while this one records
+        return fake_demos(*range(seed, seed + num))
+
+    monkeypatch.setattr(app, "record_demos", record_while_another_process_saves)
+    assert app.main(["--num", "2", "--seed", "7", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"drs-demos: error: --out {out} already holds demonstrations") and "--force" in err
+    assert load_demos(out)[1]["seeds"] == [0] and load_demos(out.with_name("my-2.demos"))[1]["seeds"] == [7, 8]
+    assert app.main(["--num", "2", "--seed", "7", "--out", str(out), "--force"]) == 0
+    assert load_demos(out)[1]["seeds"] == [7, 8]
+
+
 # ------------------------------------------------ ManiSkill trajectory files (.h5 + .json) -> demos
 H5_EPISODES = 2  # solved by the motion planner; one more random-action episode that does not succeed
 

@@ -197,6 +197,41 @@ def test_resume_config_applies_value_overrides_and_new_variant_parameters(tmp_pa
     for bad in (["reward.hidden=[64]"], ["reward.disc.window=200"]):
         with pytest.raises(ResumeError, match=f"cannot change {bad[0].split('=')[0]} of a run being resumed"):
             resume_config(tmp_path, "learn", bad)
+    # the family, the action space, the policy's inputs and the number of critics shape the saved state too
+    OmegaConf.save(
+        OmegaConf.create(
+            {
+                "phase": "learn",
+                "env": {"family": "turn_valve", "control_mode": None},
+                "algo": {"policy_in_keys": ["observation"], "loss": {"num_qvalue_nets": 2}},
+            }
+        ),
+        tmp_path / "config.yaml",
+    )
+    for bad in (
+        ["env.family=stack_cube"],
+        ["env.control_mode=pd_joint_pos"],
+        ["algo.policy_in_keys=[observation,stage_indicators]"],
+        ["algo.loss.num_qvalue_nets=5"],
+    ):
+        with pytest.raises(ResumeError, match=f"cannot change {bad[0].split('=')[0]} of a run being resumed"):
+            resume_config(tmp_path, "learn", bad)
+    OmegaConf.save(
+        OmegaConf.create(
+            {"phase": "learn", "total_frames": 100, "env": {"family": "turn_valve", "variant_overrides": {}}}
+        ),
+        tmp_path / "config.yaml",
+    )
+    # a reuse run keeps its frozen reward: another reward file is refused, the same bytes at a new path are taken
+    a, b, same = tmp_path / "a.pt", tmp_path / "b.pt", tmp_path / "moved" / "a.pt"
+    a.write_bytes(b"reward a")
+    b.write_bytes(b"reward b")
+    same.parent.mkdir()
+    same.write_bytes(b"reward a")
+    OmegaConf.save(OmegaConf.create({"phase": "reuse", "reward": {"checkpoint": str(a)}}), tmp_path / "config.yaml")
+    with pytest.raises(ResumeError, match="cannot change reward.checkpoint of a run being resumed to a different"):
+        resume_config(tmp_path, "reuse", [f"reward.checkpoint={b}"])
+    assert resume_config(tmp_path, "reuse", [f"reward.checkpoint={same}"]).reward.checkpoint == str(same)
     OmegaConf.save(
         OmegaConf.create(
             {"phase": "learn", "total_frames": 100, "env": {"family": "turn_valve", "variant_overrides": {}}}

@@ -179,3 +179,33 @@ def test_nan_weights_are_refused(tmp_path):
     r.save(tmp_path / "nan.pt")
     with pytest.raises(RewardCheckpointError, match="non-finite"):
         DrSReward.from_checkpoint(tmp_path / "nan.pt")
+
+
+@pytest.mark.parametrize("formula", ["paper", "rescaled"])
+@pytest.mark.parametrize(
+    "stage, shown",
+    [
+        ([-1, 0], "got -1"),
+        ([3, 7, 99], "got 7, 99"),
+        ([0.9, 2.0], "got 0.9"),
+        ([2.99], "got 2.99"),
+        ([float("nan")], "got nan"),
+    ],
+)
+def test_stages_outside_0_to_N_or_not_whole_are_refused_not_clamped(formula, stage, shown):
+    r = make_reward(N=3, formula=formula)
+    r.discriminators.trained.fill_(True)
+    n = len(stage)
+    x = TensorDict({"observation": torch.zeros(n, OBS), "stage": torch.tensor(stage).reshape(n, 1)}, [n])
+    with pytest.raises(ValueError, match=r"stage labels \('stage'\) must lie in \[0, 3\]") as e:
+        r.reward(x)
+    assert str(e.value).endswith(shown)
+    ok = TensorDict({"observation": torch.zeros(4, OBS), "stage": torch.tensor([[0.0], [1.0], [2.0], [3.0]])}, [4])
+    assert r.reward(ok).shape == (4, 1)  # whole-numbered floats in [0, N] are fine
+
+
+def test_an_input_of_the_wrong_size_is_named():
+    r = make_reward(N=3)
+    x = TensorDict({"observation": torch.zeros(2, OBS + 1), "stage": torch.zeros(2, 1, dtype=torch.long)}, [2])
+    with pytest.raises(ValueError, match=rf"reads 'observation' of size {OBS} .*'observation' has size {OBS + 1}"):
+        r.reward(x)

@@ -87,3 +87,33 @@ def test_a_new_reward_is_one_yaml_file(tmp_path, monkeypatch):
     finally:
         env.close()
         eval_env.close()
+
+
+def test_a_reused_drs_reward_is_used_as_it_was_learned(tmp_path):
+    """drs-reuse takes Eq. 4's formula, alpha, offset, inputs and networks from the checkpoint: an override that
+    says otherwise is refused, and a config that differs without one is made to say what the run uses."""
+    from drs_torchrl.apps.cli import check_reused_reward_overrides
+    from drs_torchrl.errors import ConfigError
+    from drs_torchrl.rewards import take_frozen_settings
+    from drs_torchrl.transforms import DrSReward
+
+    path = tmp_path / "reward.pt"
+    DrSReward(3, ["observation"], {"observation": 4}, formula="paper", alpha=0.25, hidden=[8]).save(path)
+
+    def reuse(*overrides):
+        with initialize_config_dir(config_dir=conf_dir(), version_base=None):
+            return compose("reuse", overrides=["reward=drs", f"reward.checkpoint={path}", *overrides])
+
+    same = ["reward.alpha=0.25", "reward.formula=paper", "reward.hidden=[8]"]
+    check_reused_reward_overrides(reuse(*same), "reuse", same)  # what it was learned with: fine
+    for given, learned in (("reward.alpha=0.4", "alpha=0.25"), ("reward.hidden=[64]", r"hidden=\[8\]")):
+        with pytest.raises(
+            ConfigError, match=rf"{re.escape(given)} is not what .*reward.pt was learned with \({learned}\)"
+        ):
+            check_reused_reward_overrides(reuse(given), "reuse", [given])
+    cfg = reuse()  # the defaults (rescaled, alpha 1/3, hidden [32]) were not asked for: the checkpoint's are taken
+    notes = take_frozen_settings(cfg.reward, DrSReward.from_checkpoint(path))
+    assert cfg.reward.formula == "paper" and cfg.reward.alpha == 0.25 and list(cfg.reward.hidden) == [8]
+    assert list(cfg.reward.in_keys) == ["observation"]
+    assert "reward.formula=rescaled is not used: the reused reward was learned with formula=paper" in notes
+    assert not any("in_keys" in n for n in notes)  # null: the family's inputs, nothing was said otherwise

@@ -90,6 +90,34 @@ def test_the_lock_file_is_not_a_run_file(tmp_path):
     assert copied == {"train.csv", "config.yaml"}
 
 
+def test_a_run_replaced_with_overwrite_is_set_aside_until_the_new_one_has_started(tmp_path):
+    """overwrite=true moves the old run's files aside: a new run that fails to start (a check after the directory
+    was cleared) gets them back, byte for byte, over what it wrote; one that starts drops them."""
+    from drs_torchrl.apps.cli import RUN_MARKERS, ExistingRunError, check_fresh_run_dir, replaced
+
+    d = tmp_path / "run"
+    (d / "checkpoints").mkdir(parents=True)
+    old = {"config.yaml": "old config\n", "train.csv": "step\n1\n", "checkpoints/reward.pt": "weights", "tb/ev": "x"}
+    for name, text in old.items():
+        (d / name).parent.mkdir(parents=True, exist_ok=True)
+        (d / name).write_text(text)
+    with pytest.raises(ExistingRunError, match="already holds a run"):
+        check_fresh_run_dir(d, "learn", overwrite=False)
+    aside = check_fresh_run_dir(d, "learn", overwrite=True)
+    assert aside and not any((d / m).exists() for m in (*RUN_MARKERS, "tb"))
+    (d / "config.yaml").write_text("new config\n")  # what the refused new run wrote before failing
+    (d / "checkpoints").mkdir()
+    aside.restore()
+    assert {n: (d / n).read_text() for n in old} == old and not list(d.glob(".replaced-*"))
+    # a new run that starts: the old files go for good
+    aside = check_fresh_run_dir(d, "learn", overwrite=True)
+    (d / "config.yaml").write_text("new config\n")
+    replaced(d, aside)
+    assert (d / "config.yaml").read_text() == "new config\n" and not (d / "train.csv").exists()
+    assert not list(d.glob(".replaced-*"))
+    assert not check_fresh_run_dir(tmp_path / "empty", "learn", overwrite=True)  # nothing to replace
+
+
 def test_an_output_path_that_cannot_be_written_is_named_at_once(tmp_path):
     a_file = tmp_path / "f"
     a_file.write_text("x")

@@ -53,6 +53,15 @@ def test_every_shipped_config_passes_its_schema(config, overrides):
         ("reward.disc.updates_per_sac_update=0", "updates_per_sac_update must be > 0, got 0 (fractions allowed"),
         ("demos.num=-1", "demos.num must be null or > 0, got -1 (null: all in the file)"),
         ("algo.buffer_size=16", "algo.buffer_size (16) is smaller than algo.batch_size (256)"),  # cross-field
+        # a switch is true or false: bool("no") is True, so "no" would have turned it on
+        ("overwrite=no", "overwrite must be true or false, got 'no' (str); e.g. overwrite=true"),
+        ("algo.compile=off", "algo.compile must be true or false, got 'off' (str)"),
+        ("logger.tensorboard=0", "logger.tensorboard must be true or false, got 0 (int)"),
+        ("reward.disc.latch=yes", "reward.disc.latch must be true or false, got 'yes'"),
+        ("algo.optim.lr=-1", "algo.optim.lr must be > 0, got -1"),
+        ("reward.formula=resacled", "reward.formula must be one of paper, rescaled, sum, got 'resacled'"),
+        ("reward.activation=gelu", "reward.activation must be one of sigmoid, relu, tanh, elu, got 'gelu'"),
+        ("env.cpu_batching=threads", "env.cpu_batching must be one of serial, parallel, got 'threads'"),
     ],
 )
 def test_a_bad_value_is_named_with_its_type_or_range_and_an_example(override, message):
@@ -92,6 +101,7 @@ def test_settings_an_algorithm_does_not_have_are_not_demanded():
         ("dqn.reward_scale=0", "dqn.reward_scale must be > 0, got 0 (it multiplies the reward the agent trains on)"),
         ("reward.reuse_alpha=0.5", "reward.reuse_alpha must be null or in [0, 0.5), got 0.5"),
         ("demos=-1", "demos must be >= 0, got -1"),
+        ("overwrite=no", "overwrite must be true or false, got 'no'"),
         ("num_envs=7", "frames_per_batch (256) must be a multiple of num_envs (7)"),  # cross-field, in validate
     ],
 )

@@ -61,6 +61,13 @@ def test_grid_names_runs_and_passes_every_override(tmp_path):
         ({"root": "r", "runs": [{"name": "a", "needs": ["b"]}]}, "needs \\['b'\\]"),
         ({"root": "r", "runs": [{"name": "a", "app": "train"}]}, "learn or reuse"),
         ({"root": "r", "gird": {}}, "unknown keys"),
+        # a misspelt key of a run would be dropped: the run would not wait for its need, or run as drs-learn
+        ({"root": "r", "runs": [{"name": "a", "need": ["b"]}, {"name": "b"}]}, "run a: unknown keys \\['need'\\]"),
+        ({"root": "r", "runs": [{"name": "a", "appp": "reuse"}]}, "run a: unknown keys \\['appp'\\]"),
+        # a string where a list belongs would be read letter by letter
+        ({"root": "r", "runs": [{"name": "a"}, {"name": "b", "needs": "a"}]}, "run b: needs must be a list"),
+        ({"root": "r", "runs": [{"name": "a", "args": "seed=0"}]}, "run a: args must be a list"),
+        ({"root": "r", "common": "env=turn_valve", "runs": [{"name": "a"}]}, "common must be a list"),
         (
             {"root": "r", "runs": [{"name": "a_s0"}], "figures": {"main": {"groups": ["b"]}}},
             "groups \\['b'\\] name no run.*its groups: a",
@@ -394,6 +401,40 @@ def test_a_run_another_study_call_is_training_is_neither_restarted_nor_deleted(t
     pid_file(root, "a").write_text(f"{os.getpid()}\n")  # a live pid whose program is not this run's (a recycled pid)
     assert main([str(f), "--status"]) == 0
     assert capsys.readouterr().out.split()[0] == "broken"
+
+
+def test_a_run_started_elsewhere_after_the_study_looked_is_left_alone(tmp_path, capsys, monkeypatch):
+    """Between reading the states and starting a run, another process may have started it (another study call,
+    or drs-learn by hand into the run's directory, which holds its lock): it is skipped, not deleted as broken."""
+    from drs_torchrl.apps import study
+
+    root = tmp_path / "runs"
+    f = write(tmp_path, {"root": str(root), "runs": [{"name": "a", "args": ["total_frames=1000"]}]})
+    real_state = study.study_state
+
+    def state_then_started(root_, record, run):  # the states are read, then another process takes the run
+        state = real_state(root_, record, run)
+        if holder:
+            return state
+        script = f"from drs_torchrl.rundir import lock_run_dir; lock_run_dir({str(root / 'a')!r}); "
+        script += f"open({str(root / 'a' / 'train.csv')!r}, 'w').write('step\\n'); print('locked', flush=True); "
+        script += "import time; time.sleep(60)"
+        holder.append(subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True))
+        assert holder[-1].stdout.readline().strip() == "locked"
+        return state
+
+    holder: list = []
+    monkeypatch.setattr(study, "study_state", state_then_started)
+    try:
+        assert study.main([str(f)]) == 0
+        out = capsys.readouterr().out
+        assert "a: being trained by another process, skipped" in out and "a: starting" not in out
+        assert (root / "a" / "train.csv").read_text() == "step\n"  # not deleted as a broken run
+        assert not (root / "logs" / "a.log").exists()
+    finally:
+        for p in holder:
+            p.kill()
+            p.wait()
 
 
 def test_a_reward_reference_must_be_among_the_runs_needs(tmp_path):

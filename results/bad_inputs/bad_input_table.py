@@ -192,6 +192,17 @@ def cases(work: Path, good_run: Path) -> list[Case]:
         Case("resume of a run whose training state is truncated", ["drs-learn", "resume={good}"], damage=damage_state),
         Case("a value of the wrong type", [*L, "total_frames=abc"]),
         Case("a new run in a directory that holds one (no resume=)", [*L, "hydra.run.dir={good}"]),
+        Case("overwrite=no (a switch given as a word)", [*L, "hydra.run.dir={good}", "overwrite=no"]),
+        Case(
+            "overwrite=true refused by a later check (a missing demonstrations file): the old run stays",
+            [*L, "hydra.run.dir={good}", "overwrite=true", "demos.path={d}/none.demos"],
+        ),
+        Case(
+            "drs-reuse overriding what its reward checkpoint was learned with",
+            [*R, "reward.checkpoint={good}/checkpoints/reward.pt", "reward.alpha=0.2"],
+        ),
+        Case("resume changing the task family", ["drs-learn", "resume={good}", "env.family=stack_cube"]),
+        Case("a misspelt variant parameter", [*L, "+env.variant_overrides.cube_half_sze=0.018"]),
         Case("two runs started at once into one directory", [], run=two_writers),
         Case("a full disk while saving the training state (3 MB filesystem)", [], run=disk_full),
         Case("a run directory under a file", [*L, f"hydra.run.dir={work / 'a_file'}/run"]),

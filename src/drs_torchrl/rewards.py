@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from hydra.utils import instantiate
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 from torchrl.envs.transforms import Transform
 
 from drs_torchrl.config_dir import conf_dir
@@ -109,6 +109,41 @@ def learned_reward(cfg, phase: str) -> RewardSetup:
             f"but {cfg.checkpoint} was learned by reward={got}; use reward={got}"
         )
     return RewardSetup(name, frozen=_frozen(frozen))
+
+
+# reward.* settings a reused DrS reward brings from its checkpoint (Eq. 4's form, its inputs and networks), whatever
+# the config says: the frozen reward is reused as it was learned
+FROZEN_SETTINGS = ("formula", "alpha", "offset", "hidden", "activation", "in_keys")
+
+
+def frozen_settings(reward) -> dict:
+    """The :data:`FROZEN_SETTINGS` a frozen reward was learned with (a classifier reward: none)."""
+    desc = reward.description() if isinstance(reward, DrSReward) else {}
+    return {k: desc[k] for k in FROZEN_SETTINGS if k in desc}
+
+
+def differs(setting, value) -> bool:
+    """A config value that is not the checkpoint's (numbers to 1e-6, key lists and sizes as lists; null is unset)."""
+    if setting is None:
+        return False
+    setting = OmegaConf.to_container(setting) if OmegaConf.is_config(setting) else setting
+    if isinstance(value, float) and isinstance(setting, (int, float)) and not isinstance(setting, bool):
+        return abs(float(setting) - value) > 1e-6 * max(1.0, abs(value))
+    if isinstance(value, list) and isinstance(setting, (list, tuple)):
+        return [str(v) for v in setting] != [str(v) for v in value]
+    return setting != value
+
+
+def take_frozen_settings(cfg, frozen) -> list[str]:
+    """Write the settings a reused DrS reward was learned with into the ``reward`` config ``cfg`` (a reused reward is
+    used as it was learned); one note per setting the config gave otherwise."""
+    notes = []
+    for key, value in frozen_settings(frozen).items():
+        if differs(cfg.get(key), value):
+            notes.append(f"reward.{key}={cfg.get(key)} is not used: the reused reward was learned with {key}={value}")
+        with open_dict(cfg):
+            cfg[key] = value
+    return notes
 
 
 def gail_stages_reward(cfg, phase: str) -> RewardSetup:

@@ -10,6 +10,8 @@
   :func:`space_errors` turns ``ENOSPC`` from a write into the same :class:`DiskFullError`.
 * :func:`check_writable` fails at once on an output path that cannot be written later (a file where a
   folder is needed, a folder where a file is, a read-only place), not after minutes of work.
+* :func:`clear_for_new_run` refuses a directory that holds a run, or (``overwrite=true``) sets that run's files
+  aside until the new run has started, so a replacement refused by a later check loses nothing.
 * :func:`load_run_config` reads a run's ``config.yaml``, or says how it is damaged and where a copy is.
 """
 
@@ -91,28 +93,59 @@ def _release_all() -> None:
         unlock_run_dir(d)
 
 
+class OldRun:
+    """The files of a run that a new one replaces (``overwrite=true``), moved into ``RUN_DIR/.replaced-<pid>``
+    until the new run has started: :meth:`drop` removes them once it has, :meth:`restore` puts them back when it
+    fails to start (a refused setting, a bad checkpoint), so a refused replacement loses nothing. A process killed
+    in between leaves them in that folder. Falsy when there was no run to replace."""
+
+    def __init__(self, run_dir: Path, names: list[str], found: list[str]):
+        self.run_dir, self.names, self.found = run_dir, names, found
+        self.folder = run_dir / f".replaced-{os.getpid()}"
+
+    def __bool__(self) -> bool:
+        return bool(self.found)
+
+    def set_aside(self) -> None:
+        self.folder.mkdir()
+        for name in self.names:
+            os.replace(self.run_dir / name, self.folder / name)
+
+    def drop(self) -> None:
+        shutil.rmtree(self.folder, ignore_errors=True)
+        self.names = []
+
+    def restore(self) -> None:
+        """Put the old run back, over whatever the failed start wrote at its files' names."""
+        for name in self.names:
+            new = self.run_dir / name
+            if new.is_dir() and not new.is_symlink():
+                shutil.rmtree(new)
+            elif new.exists() or new.is_symlink():
+                new.unlink()
+            os.replace(self.folder / name, new)
+        self.names = []
+        with contextlib.suppress(OSError):
+            self.folder.rmdir()
+
+
 def clear_for_new_run(
     run_dir: Path, markers, overwrite: bool, *, error: type[Exception], options: str, also=()
-) -> list[str]:
+) -> OldRun:
     """Refuse to start a new run in ``run_dir`` when it holds one (any of ``markers``: files, or non-empty folders),
     raising ``error`` with the user's ``options``, unless ``overwrite``: then that run's files (``markers`` and
-    ``also``) and its TensorBoard folder go first, so the new run's record is not mixed with them. Returns what
-    was found (empty: nothing to clear)."""
+    ``also``) and its TensorBoard folder are set aside (:class:`OldRun`), so the new run's record is not mixed with
+    them; the caller drops them once the new run has started, or restores them."""
     run_dir = Path(run_dir)
     # an empty checkpoints/ is what a run that failed to start leaves: no run to protect
     found = [m for m in markers if (run_dir / m).is_file() or ((run_dir / m).is_dir() and any((run_dir / m).iterdir()))]
-    if not found:
-        return found
-    if not overwrite:
+    if found and not overwrite:
         raise error(f"{run_dir} already holds a run ({', '.join(found)}); {options}, or replace it with overwrite=true")
-    for m in (*found, *also):
-        path = run_dir / m
-        if path.is_dir():
-            shutil.rmtree(path)
-        elif path.exists():
-            path.unlink()
-    shutil.rmtree(run_dir / "tb", ignore_errors=True)
-    return found
+    names = [m for m in dict.fromkeys((*markers, *also, "tb")) if (run_dir / m).exists() or (run_dir / m).is_symlink()]
+    old = OldRun(run_dir, names if found else [], found)
+    if found:
+        old.set_aside()
+    return old
 
 
 def nbytes(obj) -> int:

@@ -46,7 +46,7 @@ from drs_torchrl.loop import EpisodeWindow, Progress, Schedule, aggregate_episod
 from drs_torchrl.models import POLICY_FORMAT, read_policy_checkpoint
 from drs_torchrl.precision import describe_precision, grad_scaler, resolve_precision
 from drs_torchrl.provenance import code_version
-from drs_torchrl.rewards import is_learned, reward_setup
+from drs_torchrl.rewards import is_learned, reward_setup, take_frozen_settings
 from drs_torchrl.run_logger import RunLogger
 from drs_torchrl.signals import worker_env
 from drs_torchrl.tasks import TASK_OBSERVATION_KEY, family_from_config
@@ -122,6 +122,7 @@ class Run:
 
         # the reward slot: static rewards and frozen learned ones are env transforms; phase 1 builds a learner
         self.reward = reward = reward_setup(cfg.reward, phase)
+        self.notes += take_frozen_settings(cfg.reward, reward.frozen)  # config.yaml says what the run used
         reads = list(cfg.reward.get("in_keys") or getattr(reward.frozen, "reward_in_keys", None) or ())
         if TASK_OBSERVATION_KEY in reads and not cfg.env.get("task_observation"):
             with open_dict(cfg):  # the reward reads the task state: the env writes it (saved in config.yaml)

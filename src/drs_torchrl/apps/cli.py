@@ -27,7 +27,9 @@ from omegaconf import DictConfig, OmegaConf
 
 from drs_torchrl.config_dir import conf_dir  # noqa: F401 (the CLI's config path; re-exported)
 from drs_torchrl.console import UserError, console_script, user_error_message
+from drs_torchrl.errors import ConfigError
 from drs_torchrl.rundir import (
+    OldRun,
     clear_for_new_run,
     DiskFullError,
     RunDirBusyError,
@@ -106,6 +108,12 @@ FIXED_ON_RESUME = (
     "reward.disc.window",
     "env.stages",
     "env.task_observation",
+    "env.family",
+    "env.env_id",
+    "env.stage_keys",
+    "env.control_mode",
+    "algo.policy_in_keys",
+    "algo.loss.num_qvalue_nets",
 )
 
 
@@ -142,6 +150,11 @@ def resume_config(run_dir: Path, phase: str, overrides: list[str], composed: Dic
         was = OmegaConf.select(saved, key, default=None)
         was = OmegaConf.to_container(was) if OmegaConf.is_config(was) else was
         now = OmegaConf.to_container(parsed) if OmegaConf.is_config(parsed) else parsed
+        if key == "reward.checkpoint" and now != was and _other_reward(was, now):
+            raise ResumeError(
+                f"cannot change reward.checkpoint of a run being resumed to a different reward (its replay buffer "
+                f"holds rewards of {was}); start a new run with reward.checkpoint={value} instead"
+            )
         if key in FIXED_ON_RESUME and now != was:
             raise ResumeError(
                 f"cannot change {key} of a run being resumed (its saved weights and buffers were made with "
@@ -152,28 +165,70 @@ def resume_config(run_dir: Path, phase: str, overrides: list[str], composed: Dic
     return saved
 
 
+def _other_reward(was, now) -> bool:
+    """A reward checkpoint path that names a different reward: the saved one still exists and its bytes differ (a
+    file moved to another path, the old one gone, is taken as the same reward)."""
+    from drs_torchrl.apps.study import sha256_file
+
+    if not was or not now:
+        return bool(was) != bool(now)
+    if not Path(str(was)).is_file() or not Path(str(now)).is_file():  # moved; a missing new one is named on loading
+        return False
+    return sha256_file(was) != sha256_file(now)
+
+
 class ExistingRunError(UserError, ValueError):
     """A fresh run pointed at a directory that already holds one."""
 
 
-def check_fresh_run_dir(run_dir: Path, phase: str, overwrite: bool) -> None:
-    """Refuse to start a new run in ``run_dir`` when it holds a run, unless ``overwrite``: then that
-    run's files are removed first, so the new run's logs and checkpoints are not mixed with them."""
-    found = clear_for_new_run(
+def check_fresh_run_dir(run_dir: Path, phase: str, overwrite: bool) -> OldRun:
+    """Refuse to start a new run in ``run_dir`` when it holds a run, unless ``overwrite``: then that run's files
+    are set aside (returned), so the new run's logs and checkpoints are not mixed with them; the caller passes
+    them to :func:`replaced` once the new run has started, or restores them."""
+    return clear_for_new_run(
         run_dir,
         RUN_MARKERS,
         overwrite,
         error=ExistingRunError,
         options=f"continue it with drs-{phase} resume={run_dir}, choose another hydra.run.dir",
     )
-    if not found:
+
+
+def replaced(run_dir: Path, old: OldRun) -> None:
+    """The new run has started: the old run's files go, and this run's Hydra record becomes the directory's ``.hydra``."""
+    if not old:
         return
-    for old in run_dir.glob(".hydra-resume-*"):
-        shutil.rmtree(old, ignore_errors=True)
+    old.drop()
+    for stale in run_dir.glob(".hydra-resume-*"):
+        shutil.rmtree(stale, ignore_errors=True)
     new = sorted(run_dir.glob(".hydra-new-*"))
-    if new:  # this run's Hydra record becomes the directory's .hydra
+    if new:
         shutil.rmtree(run_dir / ".hydra", ignore_errors=True)
         new[-1].rename(run_dir / ".hydra")
+
+
+def check_reused_reward_overrides(cfg: DictConfig, phase: str, overrides: list[str]) -> None:
+    """Refuse a ``reward.formula`` / ``alpha`` / ``offset`` / ``hidden`` / ``activation`` / ``in_keys`` override of
+    drs-reuse that is not what its ``reward.checkpoint`` was learned with: a reused reward is the frozen one as it
+    was learned (the run would silently use the checkpoint's and its config.yaml would say otherwise)."""
+    from drs_torchrl.rewards import FROZEN_SETTINGS, differs, frozen_settings
+    from drs_torchrl.transforms.reward import load_reward
+
+    keys = [k for k in (o.partition("=")[0].lstrip("+~") for o in overrides) if k.startswith("reward.")]
+    keys = [k for k in keys if k.split(".", 1)[1] in FROZEN_SETTINGS]
+    if phase != "reuse" or not keys or not cfg.reward.get("checkpoint"):
+        return
+    have = frozen_settings(load_reward(cfg.reward.checkpoint))
+    bad = [
+        k for k in keys if k.split(".", 1)[1] in have and differs(OmegaConf.select(cfg, k), have[k.split(".", 1)[1]])
+    ]
+    if bad:
+        given = ", ".join(f"{k}={OmegaConf.select(cfg, k)}" for k in bad)
+        learned = ", ".join(f"{k.split('.', 1)[1]}={have[k.split('.', 1)[1]]}" for k in bad)
+        raise ConfigError(
+            f"{given} is not what {cfg.reward.checkpoint} was learned with ({learned}); a reused reward is used as it "
+            "was learned: drop the override, or learn a reward with it in drs-learn"
+        )
 
 
 def _run(cfg: DictConfig, phase: str) -> None:
@@ -186,21 +241,27 @@ def _run(cfg: DictConfig, phase: str) -> None:
 
     run_dir = HydraConfig.get().runtime.output_dir
     record = Path(run_dir) / HydraConfig.get().output_subdir if HydraConfig.get().output_subdir else None
-    locked, runner = [], None
+    locked, runner, old = [], None, None
     try:
         resume = bool(cfg.get("resume"))
         if resume:
             run_dir = str(Path(cfg.resume))
         # the one writer of the run directory (Hydra's record is already beside another writer's: the resolver locked)
         locked.append(lock_run_dir(run_dir, "choose another hydra.run.dir"))
-        if resume:
-            cfg = resume_config(Path(run_dir), phase, list(HydraConfig.get().overrides.task), composed=cfg)
-        else:
-            check_fresh_run_dir(Path(run_dir), phase, bool(cfg.get("overwrite", False)))
         from drs_torchrl.tasks import family_from_config
+        from drs_torchrl.apps.validation import validate_config
 
+        overrides = list(HydraConfig.get().overrides.task)
+        if resume:
+            cfg = resume_config(Path(run_dir), phase, overrides, composed=cfg)
+        validate_config(cfg, phase)  # a refused setting (overwrite=no too) touches no run
         family_from_config(cfg.env)
+        if not resume:
+            check_reused_reward_overrides(cfg, phase, overrides)
+            old = check_fresh_run_dir(Path(run_dir), phase, bool(cfg.get("overwrite", False)))
         runner = Run(cfg, phase, run_dir, resume=resume)
+        if old is not None:
+            replaced(Path(run_dir), old)  # the new run is built and has written its config: the old one goes
         summary = runner.run()
     except NonFiniteError as exc:
         print(f"drs-{phase}: stopped: {exc}", file=sys.stderr)
@@ -221,10 +282,14 @@ def _run(cfg: DictConfig, phase: str) -> None:
                     record.parent.rmdir()  # only if Hydra made it for a path that was not a run
                 except OSError:
                     pass
+        if old:  # the new run did not start: the run it was to replace is put back
+            old.restore()
         for d in locked:  # a directory made for this run that holds nothing else goes too
             unlock_run_dir(d, remove_if_empty=True)
         sys.exit(2)
     finally:
+        if old:  # the new run did not start: the run it was to replace is put back
+            old.restore()
         for d in locked:
             unlock_run_dir(d)  # the next job of a Hydra multirun may write here
     ev = summary.get("last_eval", {})

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from drs_torchrl.console import UserError, console_script
 from drs_torchrl.demos import (
+    DemosOutTakenError,
     check_demos_out,
     free_demos_path,
     load_maniskill_h5,
@@ -131,7 +132,13 @@ def main(argv: list[str] | None = None) -> int:
     except (KeyError, UserError, RuntimeError, ValueError, TypeError) as exc:
         print(f"drs-demos: error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
         return 2
-    save_demos(states, meta, out)
+    try:  # not replacing what another process wrote at --out meanwhile, unless --force
+        out = save_demos(states, meta, out, replace=a.force)
+    except DemosOutTakenError as exc:
+        if a.out is not None:  # the error names where the new demonstrations are
+            print(f"drs-demos: error: {exc}", file=sys.stderr)
+            return 2
+        out = exc.kept  # the default --out takes the next free name
     lengths = meta["lengths"]
     print(f"{meta['episodes']} demonstrations ({sum(lengths)} states, length {min(lengths)}-{max(lengths)}) -> {out}")
     return 0

@@ -88,7 +88,7 @@ from drs_torchrl.console import console_script
 from drs_torchrl.run_logger import RunLogger
 from drs_torchrl.loop import EpisodeWindow, Progress, Schedule, run_algorithm1
 from drs_torchrl.rewards import available_rewards, reused_method, reward_entry
-from drs_torchrl.rundir import clear_for_new_run, lock_run_dir
+from drs_torchrl.rundir import OldRun, clear_for_new_run, lock_run_dir
 from drs_torchrl.transforms import ClassifierReward, DrSReward, SemiSparseReward, StageIndicator, load_reward
 
 REWARD_INPUTS = ("state_action", "next_state")  # R(s, a) as the appendix's tabular analysis, or R(s') as Sec. 4.3
@@ -334,11 +334,12 @@ def validate(cfg: DictConfig) -> None:
 RUN_FILES = ("summary.json", "train.csv", "config.yaml", "reward.pt", "policy.pt")
 
 
-def check_run_dir(run_dir: Path, overwrite: bool) -> None:
+def check_run_dir(run_dir: Path, overwrite: bool) -> OldRun:
     """Refuse a directory that holds a maze run (its files would be mixed or overwritten), unless
-    ``overwrite``: then that run's files go first. (A maze run takes minutes and keeps no training
-    state, so there is nothing to resume: an interrupted one is run again.)"""
-    clear_for_new_run(
+    ``overwrite``: then that run's files are set aside (returned) for the caller to drop once the new run
+    has started. (A maze run takes minutes and keeps no training state, so there is nothing to resume: an
+    interrupted one is run again.)"""
+    return clear_for_new_run(
         run_dir,
         RUN_FILES,
         overwrite,
@@ -583,11 +584,17 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
     learn, a = cfg.phase == "learn", algo_config(cfg)
     ppo = cfg.get("agent", "dqn") == "ppo"
     map_name = cfg.map or ("train" if learn else "test")
-    check_run_dir(run_dir, bool(cfg.get("overwrite", False)))
     learner, drs = make_reward(cfg, map_name, learn)
-    # the run directory is written only once the reward (and its checkpoint) is known to be usable
-    run_dir.mkdir(parents=True, exist_ok=True)
-    OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
+    # the run directory is written only once the reward (and its checkpoint) is known to be usable; a run it
+    # replaces (overwrite=true) is set aside until this one's config is written
+    old = check_run_dir(run_dir, bool(cfg.get("overwrite", False)))
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
+    except BaseException:
+        old.restore()
+        raise
+    old.drop()
     scale = float(a.get("reward_scale", 1.0))
     # the env writes R(s, a) where the agent does not recompute it: n-step sums (formed when transitions are
     # stored) and PPO's batches (see the module docstring)

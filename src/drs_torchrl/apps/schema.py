@@ -54,6 +54,14 @@ class EvalSchema:
 class LoggerSchema:
     interval: int = setting(gt=0, example=2000)
     episode_window: int = setting(gt=0, example=50)
+    tensorboard: bool = setting(example=True)
+    csv: bool = setting(example=True)
+    wandb: bool = setting(example=False)
+
+
+@dataclass
+class OptimSchema:
+    lr: float = setting(gt=0, example=0.0003)
 
 
 @dataclass
@@ -68,6 +76,8 @@ class AlgoSchema:
     epochs: int = setting(gt=0, example=4)
     gamma: float = setting(gt=0, le=1, example=0.8)
     tau: float = setting(gt=0, le=1, example=0.005)
+    compile: bool = setting(example=False)
+    optim: OptimSchema = field(default_factory=OptimSchema)
 
 
 @dataclass
@@ -77,6 +87,7 @@ class DiscSchema:
     updates_per_sac_update: float = setting(gt=0, example=0.5, hint="(fractions allowed, e.g. 0.5)")
     window: int = setting(gt=0, example=100)
     early_stop_threshold: Optional[float] = setting(gt=0, le=1, example=0.95)
+    latch: bool = setting(example=True)
 
 
 @dataclass
@@ -98,6 +109,7 @@ class RunSchema:
 
     total_frames: int = setting(gt=0, example=200000)
     seed: int = setting(example=0)
+    overwrite: bool = setting(example=True)
     checkpoint_interval: int = setting(gt=0, example=20000)
     torch_threads: Optional[int] = setting(gt=0, example=1)
     stop_at_success: Optional[float] = setting(ge=0, le=1, example=0.8, noun="a success rate")
@@ -167,6 +179,7 @@ class MazeSchema:
 
     total_frames: int = setting(gt=0, example=200000)
     seed: int = setting(example=0)
+    overwrite: bool = setting(example=True)
     num_threads: int = setting(gt=0, example=1)
     num_envs: int = setting(gt=0, example=32)
     max_steps: int = setting(gt=0, example=200)
@@ -202,6 +215,11 @@ def check(cfg: DictConfig, schema: type, error: type[Exception] = ConfigError) -
     for key, f in _leaves(schema):
         if OmegaConf.select(typed, key, default=None) is None or OmegaConf.is_missing(typed, key):
             continue
+        given = OmegaConf.select(view, key)
+        if f.type is bool and not isinstance(given, bool):  # OmegaConf reads "no", "off", 0 as false; Python as true
+            raise error(
+                f"{key} must be true or false, got {given!r} ({type(given).__name__}); e.g. {key}={_example(f)}"
+            )
         bad = _out_of_range(OmegaConf.select(typed, key), f.metadata)
         if bad:
             m = f.metadata
@@ -259,7 +277,7 @@ def _kind(f: dataclasses.Field) -> str:
 
 def _example(f: dataclasses.Field) -> Any:
     ex = f.metadata.get("example")
-    return 1 if ex is None else ex
+    return 1 if ex is None else str(ex).lower() if isinstance(ex, bool) else ex
 
 
 def _out_of_range(v: float, m: dict) -> str | None:

@@ -124,19 +124,25 @@ def load_study(path: str | Path) -> tuple[Path, list[Run]]:
         raise StudyError(f"{path}: unknown keys {sorted(unknown)} (allowed: {', '.join(allowed)})")
     root = Path(spec["root"])
     app = spec.get("app", "learn")
-    common = [str(a) for a in spec.get("common") or []]
+    common = [str(a) for a in _listed(path, "common", spec.get("common"))]
     runs: list[Run] = []
     grid = spec.get("grid") or {}
     if grid:
         keys = list(grid)
         for values in itertools.product(*(grid[k] if isinstance(grid[k], list) else [grid[k]] for k in keys)):
             name = "_".join(f"{_short(k)}-{_safe(v)}" for k, v in zip(keys, values))
-            runs.append(Run(name, app, [*common, *(f"{k}={v}" for k, v in zip(keys, values))]))
-    for r in spec.get("runs") or []:
+            runs.append(Run(name, app, [*common, *(f"{k}={_override_value(v)}" for k, v in zip(keys, values))]))
+    for r in _listed(path, "runs", spec.get("runs")):
         if not isinstance(r, dict) or "name" not in r:
             raise StudyError(f"{path}: every entry of 'runs' needs a name, got {r!r}")
-        args = [str(a).replace("<root>", str(root)) for a in r.get("args") or []]
-        runs.append(Run(str(r["name"]), r.get("app", app), [*common, *args], [str(n) for n in r.get("needs") or []]))
+        unknown = set(r) - {"name", "app", "args", "needs"}
+        if unknown:
+            raise StudyError(
+                f"{path}: run {r['name']}: unknown keys {sorted(unknown)} (allowed: name, app, args, needs)"
+            )
+        args = [str(a).replace("<root>", str(root)) for a in _listed(path, f"run {r['name']}: args", r.get("args"))]
+        needs = [str(n) for n in _listed(path, f"run {r['name']}: needs", r.get("needs"))]
+        runs.append(Run(str(r["name"]), r.get("app", app), [*common, *args], needs))
     if not runs:
         raise StudyError(f"{path}: no runs (give a 'grid' or a 'runs' list)")
     names = [r.name for r in runs]
@@ -154,6 +160,20 @@ def load_study(path: str | Path) -> tuple[Path, list[Run]]:
                 raise StudyError(f"{path}: run {r.name} uses <{kind}:{ref}> but does not list {ref} in its needs")
     _parse_figures(path, spec.get("figures"), runs)
     return root, runs
+
+
+def _listed(path: Path, what: str, value) -> list:
+    """A study file's list (absent: empty); a string where a list belongs would be read letter by letter."""
+    if value is None:
+        return []
+    if not isinstance(value, list):
+        raise StudyError(f"{path}: {what} must be a list, e.g. [{value!r}], got {type(value).__name__} {value!r}")
+    return value
+
+
+def _override_value(v) -> str:
+    """A grid value as Hydra reads it back: YAML's null and booleans as null / true / false."""
+    return "null" if v is None else str(v).lower() if isinstance(v, bool) else str(v)
 
 
 @dataclass
@@ -229,6 +249,24 @@ def running_pid(root: Path, name: str) -> int | None:
     return pid if str(root / name) in cmdline.replace("\0", " ") else None
 
 
+def _written_elsewhere(root: Path, name: str) -> bool:
+    """Run ``name`` is trained by a live process now: one a study call started (its pid file), or any process that
+    holds the run directory's lock (a ``drs-learn`` started by hand there). Asked just before a run is (re)started
+    or a broken one deleted, since another call may have started it after this one read the states."""
+    from drs_torchrl.rundir import RunDirBusyError, lock_run_dir, unlock_run_dir
+
+    if running_pid(root, name) is not None:
+        return True
+    if not (root / name).is_dir():
+        return False
+    try:
+        lock_run_dir(root / name)
+    except RunDirBusyError:
+        return True
+    unlock_run_dir(root / name)
+    return False
+
+
 def study_state(root: Path, record: Path | None, run: Run) -> str:
     """:func:`run_state` of the run's directory, ``running`` while another study call trains it; where
     there is none, ``recorded`` if the committed record says the run finished (its state is gone: a fresh
@@ -267,6 +305,7 @@ def check_run(run: Run, root: Path, record: Path | None) -> str | None:
     behind it (a checkpoint another run of the study will write is not required to exist yet)."""
     from hydra import compose, initialize_config_dir
     from hydra.errors import HydraException
+    from omegaconf import OmegaConf
     from omegaconf.errors import OmegaConfBaseException
 
     from drs_torchrl.tasks import family_from_config
@@ -288,7 +327,9 @@ def check_run(run: Run, root: Path, record: Path | None) -> str | None:
         with initialize_config_dir(config_dir=apps.conf_dir(), version_base=None):
             cfg = compose(config_name=run.app, overrides=args)
         validate_config(cfg, run.app)
-        family_from_config(cfg.env)
+        family = family_from_config(cfg.env)
+        split = str(cfg.env.get("split") or "train")
+        family.env_args(split, OmegaConf.to_container(cfg.env.get("variant_overrides") or OmegaConf.create({})))
     except (HydraException, OmegaConfBaseException, ConfigError, KeyError, ValueError) as exc:
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
         return " ".join(str(msg).split()).split(" Config search path")[0]
@@ -772,6 +813,11 @@ def main(argv: list[str] | None = None) -> int:
                 if not all(n in done for n in r.needs):
                     continue
                 run_dir = root / r.name
+                if _written_elsewhere(root, r.name):  # started since this call looked (another call, or by hand)
+                    pending.remove(r)
+                    busy.append(r.name)
+                    print(f"drs-study: {r.name}: being trained by another process, skipped", flush=True)
+                    continue
                 state = run_state(run_dir, want[r.name])
                 if state == "broken":  # started but never reached a checkpoint: nothing to keep
                     shutil.rmtree(run_dir)

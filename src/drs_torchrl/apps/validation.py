@@ -12,6 +12,7 @@ from torchrl.collectors import MultiCollector
 from drs_torchrl.apps.schema import RunSchema, check
 from drs_torchrl.data.demo_mix import requested_sac_share
 from drs_torchrl.errors import ConfigError
+from drs_torchrl.transforms.reward import _ACTIVATIONS, FORMULAS
 
 __all__ = ["ConfigError", "validate_config", "collects_in_background", "collector_for_device"]
 
@@ -56,6 +57,13 @@ def validate_config(cfg: DictConfig, phase: str) -> None:
             f"collected), got {a.get('learning_starts')}",
         ),
     ]
+    r, e = cfg.reward, cfg.env
+    for key, value, allowed in (
+        ("reward.formula", r.get("formula"), FORMULAS),
+        ("reward.activation", r.get("activation"), tuple(_ACTIVATIONS)),
+        ("env.cpu_batching", e.get("cpu_batching"), ("serial", "parallel")),
+    ):
+        checks.append((value is None or value in allowed, f"{key} must be one of {', '.join(allowed)}, got {value!r}"))
     for ok, msg in checks:
         if not ok:
             raise ConfigError(msg)

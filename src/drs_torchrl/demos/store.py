@@ -18,7 +18,9 @@ Episodes are cut at their first successful state (training episodes terminate th
 
 from __future__ import annotations
 
+import errno
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -95,9 +97,22 @@ def free_demos_path(path: Path) -> Path:
     return out
 
 
-def save_demos(states: TensorDict, meta: dict, path: str | Path) -> Path:
-    path = check_demos_out(path)
-    tmp = path.with_name(path.name + ".tmp")
+class DemosOutTakenError(DemoError):
+    """:func:`save_demos` without ``replace`` found its path taken meanwhile; the new demonstrations are at ``kept``."""
+
+    def __init__(self, message: str, kept: Path):
+        super().__init__(message)
+        self.kept = kept
+
+
+def save_demos(states: TensorDict, meta: dict, path: str | Path, *, replace: bool = True) -> Path:
+    """Write demonstrations to ``path`` (a folder, swapped in by renames) and return it.
+
+    Without ``replace``, demonstrations that another process wrote there meanwhile are kept: the new ones go
+    to the next free name instead and :class:`DemosOutTakenError` names it.
+    """
+    path = check_demos_out(path)  # no replace check yet: the states are saved in any case, below
+    tmp = path.with_name(f"{path.name}.tmp-{os.getpid()}")  # this process's own: two saves never share one
     shutil.rmtree(tmp, ignore_errors=True)
     ensure_free(tmp, nbytes(states), "the demonstrations")  # a memory map on a full disk faults (SIGBUS)
     try:
@@ -109,13 +124,46 @@ def save_demos(states: TensorDict, meta: dict, path: str | Path) -> Path:
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    old = path.with_name(path.name + ".old")  # replace by renames: a crash midway leaves one of the two whole
-    shutil.rmtree(old, ignore_errors=True)
-    if path.exists():
-        path.rename(old)
-    tmp.rename(path)
+    old = path.with_name(f"{path.name}.old-{os.getpid()}")  # replace by renames: a crash midway leaves one whole
+    while not _rename_if_free(tmp, path):
+        demos = (path / "meta.json").is_file()
+        if not replace or not demos:  # never replace anything but demonstrations, and those only when told
+            kept = _keep_elsewhere(tmp, path)
+            what = "demonstrations" if demos else "files that are not demonstrations"
+            raise DemosOutTakenError(
+                f"--out {path} already holds {what} (written by another process while these were recorded?); "
+                f"the new demonstrations are saved at {kept} instead: use that path"
+                + (", pass --force to replace the earlier ones," if demos else "")
+                + " or give another --out",
+                kept,
+            )
+        shutil.rmtree(old, ignore_errors=True)
+        try:
+            path.rename(old)
+        except FileNotFoundError:  # another process moved it meanwhile: try again
+            pass
     shutil.rmtree(old, ignore_errors=True)
     return path
+
+
+def _rename_if_free(src: Path, dst: Path) -> bool:
+    """Rename the folder ``src`` to ``dst`` unless something (other than an empty folder) is there: one atomic
+    rename, so no other process can write ``dst`` between a check and the rename."""
+    try:
+        src.rename(dst)
+    except OSError as exc:
+        if exc.errno in (errno.ENOTEMPTY, errno.EEXIST, errno.ENOTDIR):
+            return False
+        raise
+    return True
+
+
+def _keep_elsewhere(tmp: Path, path: Path) -> Path:
+    """Give the finished folder ``tmp`` the first free name after ``path`` (``NAME-2.demos``, ...)."""
+    while True:
+        kept = free_demos_path(path)
+        if _rename_if_free(tmp, kept):
+            return kept
 
 
 def load_demos(path: str | Path) -> tuple[list[TensorDict], dict]:

@@ -10,11 +10,14 @@ module of this package (``tasks/pick_cube.py``...), imported at the bottom of th
 from __future__ import annotations
 
 import dataclasses
+import difflib
+import functools
+import inspect
 
 from dataclasses import dataclass, field
 from typing import Any
 
-from drs_torchrl.errors import UserError
+from drs_torchrl.errors import ConfigError, UserError
 
 
 @dataclass(frozen=True)
@@ -134,7 +137,88 @@ class TaskFamily:
                 f"family {self.name!r} has no variant {variant!r}; known: {sorted(self.variants)} "
                 f"(or 'train'/'test'). Set a parameter directly with env.variant_overrides."
             )
-        return {**self.variants[variant], **(overrides or {})}
+        kwargs = {**self.variants[variant], **(overrides or {})}
+        if overrides:
+            self.check_overrides(overrides, kwargs.get("env_id", self.env_id))
+        return kwargs
+
+    def check_overrides(self, overrides: dict, env_id: str | None = None) -> None:
+        """Raise :class:`~drs_torchrl.errors.ConfigError` naming each key of ``overrides`` (``env.variant_overrides``,
+        ``--override``) that is neither a variant parameter of the family nor a keyword argument of its env
+        (``env_id``, default the family's), with the close match of a typo; an env whose arguments cannot be
+        read (not installed, not registered, ``**kwargs``) is left to its constructor."""
+        params = _env_parameters(self.backend, env_id or self.env_id)
+        if params is None:
+            return
+        special = {"env_id", "control_mode"}  # a variant may name its own (env_args)
+        per_variant = (set(params[0]) | {k for v in self.variants.values() for k in v}) - special
+        others = (set(params[1]) | special) - per_variant
+        unknown = [k for k in overrides if k not in per_variant | others]
+        if not unknown:
+            return
+        named = []
+        for key in unknown:
+            close = difflib.get_close_matches(str(key), sorted(per_variant | others), n=1)
+            named.append(f"{key!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
+        raise ConfigError(
+            f"family {self.name!r} has no variant parameter {', '.join(named)}; its variant parameters: "
+            f"{sorted(per_variant)}, and {env_id or self.env_id} also takes {sorted(others)}"
+        )
+
+
+# keyword arguments that ManiSkillEnv / the pooled envs set themselves (envs/maniskill.py, envs/variants/pool.py)
+_SET_BY_DRS = frozenset(
+    {"variants", "variant_names", "num_envs", "obs_mode", "sim_backend", "reward_mode", "render_mode"}
+)
+
+
+@functools.lru_cache(maxsize=None)
+def _env_parameters(backend: str, env_id: str) -> tuple[tuple[str, ...], tuple[str, ...]] | None:
+    """(per-variant parameters, other keyword arguments) of the env ``env_id`` builds; None where they cannot be
+    read: the env is not installed or registered, or its constructor takes any ``**kwargs``. Imports the
+    simulator (once): call it when an env is about to be built."""
+    try:
+        if backend == "gymnasium":
+            import gymnasium
+
+            from drs_torchrl.envs.gym_family import WRAPPER_KWARGS
+
+            entry = gymnasium.spec(env_id).entry_point
+            creator = gymnasium.envs.registration.load_env_creator(entry) if isinstance(entry, str) else entry
+            per_variant, reserved = tuple(WRAPPER_KWARGS), frozenset()
+        else:
+            import mani_skill.envs  # noqa: F401  (registers ManiSkill's envs)
+            from mani_skill.utils.registration import REGISTERED_ENVS
+
+            import drs_torchrl.envs.variants  # noqa: F401  (registers drs-torchrl's)
+
+            creator = REGISTERED_ENVS[env_id].cls
+            per_variant, reserved = tuple(getattr(creator, "VARIANT_DEFAULTS", {})), _SET_BY_DRS
+    except Exception:  # not installed, not registered: building the env says so
+        return None
+    keywords = _constructor_keywords(creator)
+    if keywords is None:
+        return None
+    return per_variant, tuple(sorted(keywords - reserved - set(per_variant)))
+
+
+def _constructor_keywords(creator) -> set[str] | None:
+    """The keyword arguments an env class (following ``**kwargs`` up its base classes) or function takes; None if
+    it passes ``**kwargs`` on to a constructor that takes anything."""
+    if isinstance(creator, type):
+        inits = [k.__dict__["__init__"] for k in creator.__mro__ if "__init__" in k.__dict__]
+    else:
+        inits = [creator]
+    names: set[str] = set()
+    for init in inits:
+        try:
+            params = list(inspect.signature(init).parameters.values())
+        except (TypeError, ValueError):
+            return None
+        names |= {p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+        if not any(p.kind is p.VAR_KEYWORD for p in params):
+            return names - {"self"}
+    return None
 
 
 def column_groups(*sizes: tuple[str, int]) -> dict[str, tuple[int, int]]:

@@ -181,14 +181,21 @@ class DrSReward(LearnedRewardChecks, Transform):
     def features(self, td: TensorDictBase) -> torch.Tensor:
         """Concatenate the reward inputs of states held at the root of ``td``."""
         dtype = next(self.discriminators.parameters()).dtype  # follows .double() / .to(dtype) of the transform
-        return torch.cat([require(td, k).to(dtype) for k in self.reward_in_keys], dim=-1)
+        parts = [require(td, k) for k in self.reward_in_keys]
+        for k, x in zip(self.reward_in_keys, parts):  # shapes only: no device sync
+            if x.shape[-1:] != (self.in_shapes[k],):
+                got = x.shape[-1] if x.dim() else "a scalar"
+                raise ValueError(
+                    f"the reward reads {k!r} of size {self.in_shapes[k]} (in_shapes), this TensorDict's {k!r} "
+                    f"has size {got}"
+                )
+        return torch.cat([x.to(dtype) for x in parts], dim=-1)
 
     def combine(self, logits: torch.Tensor, stage: torch.Tensor) -> torch.Tensor:
         """Eq. 4 from all-stage logits ``(*b, N)`` and stage indices ``(*b, 1)``; returns ``(*b, 1)``."""
-        stage = stage.to(torch.long)
         if self.formula == "sum":
             return (torch.tanh(logits) * self.discriminators.trained.to(logits.dtype)).sum(-1, keepdim=True)
-        k = stage.clamp(0, self.num_stages)
+        k = check_stages(stage, self.num_stages, self.stage_key)
         kd = k.clamp(max=self.num_stages - 1)
         dense = torch.tanh(logits.gather(-1, kd))
         counts = (k < self.num_stages) & self.discriminators.trained.to(k.device)[kd]
@@ -313,6 +320,20 @@ def bounded_reward_spec(reward_spec, key, low: float, high: float):
     shape = reward_spec[key].shape if key in reward_spec.keys() else (*reward_spec.shape, 1)
     reward_spec[key] = Bounded(low, high, shape=shape, dtype=torch.float32, device=reward_spec.device)
     return reward_spec
+
+
+def check_stages(stage: torch.Tensor, num_stages: int, key="stage") -> torch.Tensor:
+    """``stage`` as int64, or a ValueError naming the labels that are not whole numbers in ``[0, num_stages]``."""
+    bad = (stage < 0) | (stage > num_stages)
+    if stage.is_floating_point():
+        bad |= stage != stage.trunc()  # 0.9 and 2.99 would truncate to 0 and 2; NaN is caught here too
+    if bad.any():  # one bool read per call (on a GPU: one device sync); the rest only on the error path
+        shown = stage[bad].unique().tolist()
+        raise ValueError(
+            f"stage labels ({key!r}) must lie in [0, {num_stages}] and be whole numbers, got "
+            f"{', '.join(f'{v:g}' for v in shown[:5])}{' ...' if len(shown) > 5 else ''}"
+        )
+    return stage.to(torch.long)
 
 
 def require(td: TensorDictBase, key) -> torch.Tensor:
