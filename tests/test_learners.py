@@ -64,6 +64,11 @@ def test_classifier_reward_outputs_bounds_and_stage_term():
         reward(output="exp")
     with pytest.raises(KeyError, match="reads \\(s, a\\)"):
         reward(use_action=True, action_dim=2).reward(td)
+    # the stage term refuses a stage outside [0, N] as DrSReward does (it had scored stage 5 above success)
+    bad = states(2, good=True)
+    bad["stage"] = torch.tensor([[5], [-1]])
+    with pytest.raises(ValueError, match=r"stage labels \('stage'\) must lie in \[0, 1\] .*got -1, 5"):
+        r.reward(bad)
 
 
 def test_vice_raq_separates_success_states_from_the_rest():

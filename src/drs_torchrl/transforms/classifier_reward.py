@@ -35,6 +35,7 @@ from drs_torchrl.transforms.reward import (
     LearnedRewardChecks,
     RewardCheckpointError,
     bounded_reward_spec,
+    check_stages,
     checkpoint_config,
     load_checked,
     read_reward_checkpoint,
@@ -175,8 +176,10 @@ class ClassifierReward(LearnedRewardChecks, Transform):
             z = torch.zeros_like(z)
         r = F.logsigmoid(z) if self.output == "log_sigmoid" else torch.sigmoid(z)
         r = self.classifier_weight * (r + self.offset)
-        if self.stage_weight:
-            r = r + self.stage_weight * (stage.to(r.dtype) - self.num_stages)
+        if self.stage_weight:  # GAIL with stages (Appendix F.2): a stage outside [0, N] is refused, as by DrSReward
+            r = r + self.stage_weight * (
+                check_stages(stage, self.num_stages, self.stage_key).to(r.dtype) - self.num_stages
+            )
         return r
 
     def reward_of(
