@@ -61,6 +61,8 @@ def test_every_shipped_config_passes_its_schema(config, overrides):
         ("algo.optim.lr=-1", "algo.optim.lr must be > 0, got -1"),
         ("reward.formula=resacled", "reward.formula must be one of paper, rescaled, sum, got 'resacled'"),
         ("reward.activation=gelu", "reward.activation must be one of sigmoid, relu, tanh, elu, got 'gelu'"),
+        ("env.num_envs=0", "env.num_envs must be > 0, got 0"),
+        ("env.max_episode_steps=0", "env.max_episode_steps must be null or > 0, got 0 (null: the family's)"),
         ("env.cpu_batching=threads", "env.cpu_batching must be one of serial, parallel, got 'threads'"),
     ],
 )

@@ -104,6 +104,12 @@ class DemosSchema:
 
 
 @dataclass
+class EnvSchema:
+    num_envs: int = setting(gt=0, example=1)
+    max_episode_steps: Optional[int] = setting(gt=0, example=50, hint="(null: the family's)")
+
+
+@dataclass
 class RunSchema:
     """drs-learn / drs-reuse (``conf/learn.yaml``, ``conf/reuse.yaml`` and their groups)."""
 
@@ -113,6 +119,7 @@ class RunSchema:
     checkpoint_interval: int = setting(gt=0, example=20000)
     torch_threads: Optional[int] = setting(gt=0, example=1)
     stop_at_success: Optional[float] = setting(ge=0, le=1, example=0.8, noun="a success rate")
+    env: EnvSchema = field(default_factory=EnvSchema)
     eval: EvalSchema = field(default_factory=EvalSchema)
     logger: LoggerSchema = field(default_factory=LoggerSchema)
     algo: AlgoSchema = field(default_factory=AlgoSchema)
