@@ -262,6 +262,7 @@ def _run(cfg: DictConfig, phase: str) -> None:
         runner = Run(cfg, phase, run_dir, resume=resume)
         if old is not None:
             replaced(Path(run_dir), old)  # the new run is built and has written its config: the old one goes
+            old = None
         summary = runner.run()
     except NonFiniteError as exc:
         print(f"drs-{phase}: stopped: {exc}", file=sys.stderr)
@@ -288,7 +289,7 @@ def _run(cfg: DictConfig, phase: str) -> None:
             unlock_run_dir(d, remove_if_empty=True)
         sys.exit(2)
     finally:
-        if old:  # the new run did not start: the run it was to replace is put back
+        if old:  # interrupted before the new run started: the run it was to replace is put back
             old.restore()
         for d in locked:
             unlock_run_dir(d)  # the next job of a Hydra multirun may write here
