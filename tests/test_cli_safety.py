@@ -90,7 +90,7 @@ def test_a_value_of_the_wrong_type_is_one_line_and_the_fix(tmp_path, override, m
     assert p.returncode == 2
     assert message in p.stderr and "e.g." in p.stderr
     assert "Traceback" not in p.stderr
-    assert not (tmp_path / "r" / "config.yaml").exists()
+    assert not (tmp_path / "r").exists()  # no folder left holding only Hydra's record
 
 
 def _wait_for_progress(run_dir: Path, proc, timeout=300):

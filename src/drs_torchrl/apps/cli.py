@@ -194,6 +194,10 @@ def check_fresh_run_dir(run_dir: Path, phase: str, overwrite: bool) -> OldRun:
     )
 
 
+def _holds_run(run_dir: Path) -> bool:
+    return any((run_dir / m).exists() for m in RUN_MARKERS)
+
+
 def replaced(run_dir: Path, old: OldRun) -> None:
     """The new run has started: the old run's files go, and this run's Hydra record becomes the directory's ``.hydra``."""
     if not old:
@@ -283,6 +287,8 @@ def _run(cfg: DictConfig, phase: str) -> None:
                     record.parent.rmdir()  # only if Hydra made it for a path that was not a run
                 except OSError:
                     pass
+        elif record is not None and record.name == ".hydra" and not resume and not _holds_run(Path(run_dir)):
+            shutil.rmtree(record, ignore_errors=True)  # a refused new run leaves no folder holding only Hydra's record
         if old:  # the new run did not start: the run it was to replace is put back
             old.restore()
         for d in locked:  # a directory made for this run that holds nothing else goes too
