@@ -81,7 +81,7 @@ def _hydra_subdir_resolver(resume, run_dir=None):
             return _REFUSED[job]
     if resume:
         return ".hydra-resume-" + _STARTED
-    if run_dir and any((Path(str(run_dir)) / m).exists() for m in RUN_MARKERS):
+    if run_dir and _holds_run(Path(str(run_dir))):
         return ".hydra-new-" + _STARTED
     return ".hydra"
 
@@ -218,17 +218,17 @@ def check_reused_reward_overrides(cfg: DictConfig, phase: str, overrides: list[s
     from drs_torchrl.rewards import FROZEN_SETTINGS, differs, frozen_settings
     from drs_torchrl.transforms.reward import load_reward
 
-    keys = [k for k in (o.partition("=")[0].lstrip("+~") for o in overrides) if k.startswith("reward.")]
-    keys = [k for k in keys if k.split(".", 1)[1] in FROZEN_SETTINGS]
+    given = {
+        k[len("reward.") :] for k in (o.partition("=")[0].lstrip("+~") for o in overrides) if k.startswith("reward.")
+    }
+    keys = [k for k in FROZEN_SETTINGS if k in given]
     if phase != "reuse" or not keys or not cfg.reward.get("checkpoint"):
         return
     have = frozen_settings(load_reward(cfg.reward.checkpoint))
-    bad = [
-        k for k in keys if k.split(".", 1)[1] in have and differs(OmegaConf.select(cfg, k), have[k.split(".", 1)[1]])
-    ]
+    bad = [k for k in keys if k in have and differs(cfg.reward.get(k), have[k])]
     if bad:
-        given = ", ".join(f"{k}={OmegaConf.select(cfg, k)}" for k in bad)
-        learned = ", ".join(f"{k.split('.', 1)[1]}={have[k.split('.', 1)[1]]}" for k in bad)
+        given = ", ".join(f"reward.{k}={cfg.reward.get(k)}" for k in bad)
+        learned = ", ".join(f"{k}={have[k]}" for k in bad)
         raise ConfigError(
             f"{given} is not what {cfg.reward.checkpoint} was learned with ({learned}); a reused reward is used as it "
             "was learned: drop the override, or learn a reward with it in drs-learn"
