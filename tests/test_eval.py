@@ -296,3 +296,28 @@ def test_training_evaluations_replay_the_same_episodes_with_episode_seed(tmp_pat
     assert not torch.equal(first[0], first[1])  # distinct episodes within one evaluation
     unseeded = _training_evaluations(tmp_path / "unseeded")
     assert not all(torch.equal(a, b) for a, b in zip(unseeded[:3], unseeded[3:]))  # the default: new episodes
+
+
+def test_eval_keeps_an_earlier_report_made_with_other_settings(trained, tmp_path):
+    """The default report name carries --override values; a second call with other --episodes does not replace
+    the first report, and the same call again replaces its own."""
+    import shutil
+
+    run_dir = shutil.copytree(trained, tmp_path / "run")
+    for f in run_dir.glob("eval_*.json"):
+        f.unlink()
+    calls = [
+        ["--episodes", "1"],
+        ["--episodes", "2"],
+        ["--episodes", "1"],
+        ["--episodes", "1", "--override", "cube_half_size=0.02"],
+    ]
+    for args in calls:
+        p = run("drs-eval", str(run_dir), "--split", "test", "--episode-seed", "0", *args, cwd=run_dir)
+        assert p.returncode == 0, p.stderr[-2000:]
+    names = sorted(f.name for f in run_dir.glob("eval_*.json"))
+    assert names == ["eval_test.json", "eval_test_2.json", "eval_test_cube_half_size=0.02.json"], names
+    assert json.loads((run_dir / "eval_test.json").read_text())["episodes"] == 1
+    assert json.loads((run_dir / "eval_test_2.json").read_text())["episodes"] == 2
+    res = json.loads((run_dir / "eval_test_cube_half_size=0.02.json").read_text())
+    assert res["overrides"] == {"cube_half_size": 0.02}

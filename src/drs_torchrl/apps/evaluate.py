@@ -9,19 +9,23 @@
 Per episode: ``success_once`` (success at any step), ``success_at_end`` (at the last step; the same
 here because episodes end on success, as in the authors' code), the highest stage reached, the
 length and the return under the run's own reward (its learned reward for a DrS run). Prints a table
-and writes ``eval_<split>.json`` into the run directory (or ``--out``).
+and writes ``eval_<split>.json`` into the run directory (or ``--out``); ``--override`` values are part of
+that name, and an earlier report made with other settings is kept (the new one takes the next free name).
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
+import os
 import sys
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from drs_torchrl.checkpoint import atomic_write_text
 from drs_torchrl.console import UserError, console_script
 from drs_torchrl.rundir import check_writable, load_run_config
 
@@ -183,6 +187,7 @@ def evaluate_run(
         "overrides": overrides or {},
         "episodes": episodes,
         "episode_seed": episode_seed,
+        "seed": seed,
         "deterministic": deterministic,
         "policy_frames": meta.get("frames"),
         "success_once": float(np.mean([r["success_once"] for r in rows])),
@@ -196,6 +201,34 @@ def evaluate_run(
         summary["episodes_data"] = kept
         summary["reward"] = reward.description() if reward is not None else {"name": cfg.reward.name}
     return summary
+
+
+# what decides which episodes a report measures: a report that differs in one of them is another measurement
+REPORT_SETTINGS = ("split", "overrides", "episodes", "episode_seed", "seed", "deterministic", "policy_frames")
+
+
+def report_path(res: dict) -> tuple[Path, Path | None]:
+    """Where ``drs-eval`` writes ``res`` by default, and the earlier report it keeps instead of replacing.
+
+    ``RUN_DIR/eval_<split>[_<k>=<v>...].json``. The same measurement again (every ``REPORT_SETTINGS`` equal)
+    replaces its report; a report with other settings, or one that cannot be read, is kept and the new one
+    takes the next free name (``..._2.json``)."""
+    name = "_".join([f"eval_{res['split']}", *(f"{k}={v}" for k, v in sorted(res["overrides"].items()))])
+    name = "".join(c if c.isalnum() or c in "._=-" else "-" for c in name)
+    run_dir = Path(res["run_dir"])
+    kept = None
+    for n in itertools.count(1):
+        path = run_dir / (f"{name}.json" if n == 1 else f"{name}_{n}.json")
+        if not path.exists():
+            return path, kept
+        try:
+            old = json.loads(path.read_text())
+            same = all(old.get(k) == res.get(k) for k in REPORT_SETTINGS)
+        except (OSError, ValueError):
+            same = False
+        if same:
+            return path, kept
+        kept = kept or path
 
 
 @console_script("drs-eval")
@@ -217,7 +250,11 @@ def main(argv: list[str] | None = None) -> int:
         help="reset episode i with seed S+i: the same starts in every call and every run (as eval.episode_seed)",
     )
     p.add_argument("--video", metavar="DIR", help="record each episode to DIR/*.mp4")
-    p.add_argument("--out", help="where to write the JSON report (default RUN_DIR/eval_<split>.json)")
+    p.add_argument(
+        "--out",
+        help="where to write the JSON report (default RUN_DIR/eval_<split>[_K=V].json; an earlier one with other "
+        "settings is kept)",
+    )
     a = p.parse_args(argv)
     import yaml
 
@@ -226,6 +263,8 @@ def main(argv: list[str] | None = None) -> int:
             check_writable(a.video, "--video", folder=True)
         if a.out:
             check_writable(a.out, "--out")
+        elif Path(a.run_dir).is_dir() and not os.access(a.run_dir, os.W_OK | os.X_OK):
+            raise EvalError(f"{a.run_dir} cannot be written (no permission): pass --out FILE for the report")
         overrides = {}
         for o in a.override:
             k, sep, v = o.partition("=")
@@ -246,8 +285,8 @@ def main(argv: list[str] | None = None) -> int:
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
         print(f"drs-eval: error: {msg}", file=sys.stderr)
         return 2
-    out = Path(a.out) if a.out else Path(res["run_dir"]) / f"eval_{res['split']}.json"
-    out.write_text(json.dumps(res, indent=2))
+    out, kept = (Path(a.out), None) if a.out else report_path(res)
+    atomic_write_text(out, json.dumps(res, indent=2))
     reach = "  ".join(f"stage>={k} {res[f'reach_stage_{k}']:.2f}" for k in range(1, 99) if f"reach_stage_{k}" in res)
     print(
         f"drs-eval: {res['family']} {res['split']}, {res['episodes']} {'deterministic' if res['deterministic'] else 'stochastic'} "
@@ -260,6 +299,8 @@ def main(argv: list[str] | None = None) -> int:
     if a.video:
         print(f"  videos in {a.video}")
     print(f"  report: {out}")
+    if kept:
+        print(f"  (kept {kept.name}: an earlier report with other settings)")
     return 0
 
 
