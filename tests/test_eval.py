@@ -32,7 +32,7 @@ def test_eval_reports_maniskill_metrics_on_the_held_out_split(trained):
     assert p.returncode == 0, p.stderr[-2000:]
     assert "success_once" in p.stdout and "success_at_end" in p.stdout and "stage>=3" in p.stdout
     res = json.loads((trained / "eval_test.json").read_text())
-    assert res["split"] == "test" and res["episodes"] == 3 and len(res["rows"]) == 3
+    assert res["split"] == "test" and res["episodes"] == 3 and len(res["rows"]) == 3 and res["seed"] == 12345
     for row in res["rows"]:
         assert 1 <= row["length"] <= 20
         assert row["success_at_end"] <= row["success_once"]
@@ -298,26 +298,30 @@ def test_training_evaluations_replay_the_same_episodes_with_episode_seed(tmp_pat
     assert not all(torch.equal(a, b) for a, b in zip(unseeded[:3], unseeded[3:]))  # the default: new episodes
 
 
-def test_eval_keeps_an_earlier_report_made_with_other_settings(trained, tmp_path):
-    """The default report name carries --override values; a second call with other --episodes does not replace
-    the first report, and the same call again replaces its own."""
-    import shutil
+@pytest.mark.parametrize("damaged", [False, True])
+def test_eval_report_name_keeps_an_earlier_report_made_with_other_settings(tmp_path, damaged):
+    """drs-eval's default report: --override values name it; an earlier report with other --episodes (or one
+    that cannot be read) is kept and the new one takes the next free name; the same measurement replaces its own."""
+    from drs_torchrl.apps.evaluate import report_path
 
-    run_dir = shutil.copytree(trained, tmp_path / "run")
-    for f in run_dir.glob("eval_*.json"):
-        f.unlink()
-    calls = [
-        ["--episodes", "1"],
-        ["--episodes", "2"],
-        ["--episodes", "1"],
-        ["--episodes", "1", "--override", "cube_half_size=0.02"],
-    ]
-    for args in calls:
-        p = run("drs-eval", str(run_dir), "--split", "test", "--episode-seed", "0", *args, cwd=run_dir)
-        assert p.returncode == 0, p.stderr[-2000:]
-    names = sorted(f.name for f in run_dir.glob("eval_*.json"))
-    assert names == ["eval_test.json", "eval_test_2.json", "eval_test_cube_half_size=0.02.json"], names
-    assert json.loads((run_dir / "eval_test.json").read_text())["episodes"] == 1
-    assert json.loads((run_dir / "eval_test_2.json").read_text())["episodes"] == 2
-    res = json.loads((run_dir / "eval_test_cube_half_size=0.02.json").read_text())
-    assert res["overrides"] == {"cube_half_size": 0.02}
+    def res(episodes=1, **overrides):
+        return {
+            "run_dir": str(tmp_path),
+            "split": "test",
+            "overrides": overrides,
+            "episodes": episodes,
+            "episode_seed": 0,
+            "seed": 12345,
+            "deterministic": True,
+            "policy_frames": 2000,
+        }
+
+    first = tmp_path / "eval_test.json"
+    first.write_text("{not json" if damaged else json.dumps(res(episodes=1)))
+    assert report_path(res(episodes=2)) == (tmp_path / "eval_test_2.json", first)
+    (tmp_path / "eval_test_2.json").write_text(json.dumps(res(episodes=2)))
+    assert report_path(res(episodes=2)) == (tmp_path / "eval_test_2.json", first)
+    assert report_path(res(episodes=3)) == (tmp_path / "eval_test_3.json", first)
+    if not damaged:
+        assert report_path(res(episodes=1)) == (first, None)  # the same measurement again: its own report
+    assert report_path(res(cube_half_size=0.02)) == (tmp_path / "eval_test_cube_half_size=0.02.json", None)
