@@ -109,3 +109,32 @@ def test_a_margin_of_exactly_0_2_counts(tmp_path):
     assert "DrS vs sparse: **DrS beats sparse** (final +0.20" in text
     text = decide(make_record(tmp_path / "b", {**none, **drs, "dense": [0.55, 0.55, 0.5]}))  # mean 8/15
     assert "DrS vs dense: **dense beats DrS** (final -0.20" in text
+
+
+def test_the_readme_columns_name_each_family_verdict(tmp_path):
+    """``decide.py --readme``: one column per family, the rule's verdicts in its rows, arms not finished marked."""
+    none = {a: [0.0] * 3 for a in ARMS}
+    a = make_record(tmp_path / "a", {**none, "drs-learn0": [0.9] * 3, "drs-learn1": [0.8] * 3})
+    b = make_record(tmp_path / "b", none, unfinished="dense_s2")
+    out = subprocess.run(
+        [sys.executable, str(DECIDE), "--readme", str(a), str(b)], capture_output=True, text=True, check=True
+    ).stdout
+    rows = {line.split(" | ")[0].strip("| "): line.split(" | ")[1:] for line in out.splitlines()[2:]}
+    assert rows["DrS beats sparse"][0].startswith("**DrS beats sparse**; sparse 0.00")
+    assert rows["DrS beats sparse"][1].startswith("**no difference**; sparse 0.00")
+    assert (
+        rows["DrS beats dense"][1]
+        == "not decidable yet; dense (ManiSkill's, minus 1) 0.00 [0.000] (2 of 3 runs so far) |"
+    )
+    recipe = next(v for k, v in rows.items() if k.startswith("the recipe works"))
+    assert recipe == ["**works** (6 of 6 end at >= 0.5)", "**fails** (0 of 6 end at >= 0.5) |"]
+
+
+def test_the_readme_claims_table_shows_the_committed_records_verdicts():
+    """The README's pre-registered columns are what ``decide.py --readme`` makes of the committed records (re-run it
+    after recording a run)."""
+    folders = [REPO / "results" / "recipe" / f for f in ("stack_cube", "place_sphere")]
+    out = subprocess.run(
+        [sys.executable, str(DECIDE), "--readme", *map(str, folders)], capture_output=True, text=True, check=True
+    ).stdout
+    assert out in (REPO / "README.md").read_text(), "README.md's pre-registered columns are stale:\n" + out
