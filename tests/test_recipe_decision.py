@@ -123,8 +123,8 @@ def test_the_readme_columns_name_each_family_verdict(tmp_path):
     assert rows["DrS beats sparse"][0].startswith("**DrS beats sparse**; sparse 0.00")
     assert rows["DrS beats sparse"][1].startswith("**no difference**; sparse 0.00")
     assert (
-        rows["DrS beats dense"][1]
-        == "not decidable yet; dense (ManiSkill's, minus 1) 0.00 [0.000] (2 of 3 runs so far) |"
+        rows["DrS beats dense (ManiSkill's dense reward, minus 1)"][1]
+        == "not decidable yet; dense 0.00 [0.000] (2 of 3 runs so far) |"
     )
     recipe = next(v for k, v in rows.items() if k.startswith("the recipe works"))
     assert recipe == ["**works** (6 of 6 end at >= 0.5)", "**fails** (0 of 6 end at >= 0.5) |"]

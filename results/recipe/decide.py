@@ -169,7 +169,8 @@ def decision_md(folder: Path, r: dict) -> str:
     return "\n".join(out) + "\n"
 
 
-LABELS = {"sparse": "sparse", "semi_sparse": "semi-sparse", "dense": "dense (ManiSkill's, minus 1)"}
+LABELS = {"sparse": "sparse", "semi_sparse": "semi-sparse", "dense": "dense"}
+ROW_NOTES = {"dense": " (ManiSkill's dense reward, minus 1)"}
 
 
 def claims_columns(folders: list[Path]) -> str:
@@ -192,7 +193,7 @@ def claims_columns(folders: list[Path]) -> str:
             v = r["versus"][x]
             verdict = f"**{v['verdict']}**" if v else "not decidable yet"
             cells.append(f"{verdict}; {LABELS[x]} {arm(r, x)}")
-        lines.append(f"| DrS beats {LABELS[x].split(' (')[0]} | " + " | ".join(cells) + " |")
+        lines.append(f"| DrS beats {LABELS[x]}{ROW_NOTES.get(x, '')} | " + " | ".join(cells) + " |")
     cells = []
     for r in results:
         rec = r["recipe"]
