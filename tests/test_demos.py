@@ -120,6 +120,75 @@ def test_demos_replace_those_written_meanwhile_only_when_told(tmp_path, monkeypa
     assert [p.name for p in tmp_path.iterdir()] == ["my.demos"]
 
 
+def a_dead_pid() -> int:
+    import os
+
+    for pid in range(4_000_000, 4_100_000):
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return pid
+        except OSError:
+            pass
+    raise AssertionError("no free pid found")
+
+
+def test_a_replace_stopped_between_its_renames_loses_nothing_and_load_names_both_copies(tmp_path, monkeypatch):
+    """drs-demos --force killed after moving the earlier demonstrations aside and before the new ones took the
+    name: the name is empty, both recordings are whole beside it, and reading the name says where they are."""
+    import os
+
+    from drs_torchrl.demos import leftover_notes, leftover_saves, store
+
+    out = tmp_path / "my.demos"
+    save_demos(*fake_demos(7), out)
+    dead, real_rename = a_dead_pid(), store._rename_if_free
+    calls = []
+
+    def killed_on_the_second_try(src, dst):
+        calls.append(dst)
+        if len(calls) == 2:
+            raise KeyboardInterrupt  # the process dies here: nothing after this line of save_demos runs
+        return real_rename(src, dst)
+
+    monkeypatch.setattr(store, "_rename_if_free", killed_on_the_second_try)
+    monkeypatch.setattr(os, "getpid", lambda: dead)
+    with pytest.raises(KeyboardInterrupt):
+        save_demos(*fake_demos(0), out, replace=True)
+    monkeypatch.undo()
+    new, old = tmp_path / f"my.demos.tmp-{dead}", tmp_path / f"my.demos.old-{dead}"
+    assert not out.exists() and leftover_saves(out) == [(new, True), (old, True)]
+    with pytest.raises(DemoError) as e:
+        load_demos(out)
+    assert str(e.value) == (
+        f"{out} does not exist, but a drs-demos save to it stopped midway and left new demonstrations that had not "
+        f"taken the name yet at {new} and the ones it replaced at {old}: move the one you want into place "
+        f"(mv {new} {out}), or record them again"
+    )
+    assert load_demos(new)[1]["seeds"] == [0] and load_demos(old)[1]["seeds"] == [7]  # both whole
+    half = tmp_path / f"my.demos.tmp-{dead}0"  # another save, killed before its meta.json (a dead pid too)
+    (half / "states").mkdir(parents=True)
+    (tmp_path / f"my.demos.tmp-{os.getpid()}").mkdir()  # a save running now (this process) is not a leftover
+    assert leftover_notes(out) == [
+        f"{new} holds new demonstrations that had not taken the name yet, left whole by a save to my.demos that "
+        f"stopped midway; use them (mv {new} OTHER.demos) or delete the folder",
+        f"{half} is what a stopped save to my.demos left half written; delete it (rm -r {half})",
+        f"{old} holds the ones it replaced, left whole by a save to my.demos that stopped midway; use them "
+        f"(mv {old} OTHER.demos) or delete the folder",
+    ]
+
+
+def test_drs_demos_names_what_a_stopped_save_left_beside_its_out_and_keeps_it(tmp_path, monkeypatch, capsys):
+    from drs_torchrl.apps import demos as app
+
+    out = tmp_path / "my.demos"
+    left = save_demos(*fake_demos(5), tmp_path / "x.demos").rename(tmp_path / f"my.demos.tmp-{a_dead_pid()}")
+    monkeypatch.setattr(app, "record_demos", lambda fam, variant, num, *, seed, **kw: fake_demos(seed))
+    assert app.main(["--num", "1", "--seed", "3", "--out", str(out)]) == 0
+    assert f"drs-demos: note: {left} holds new demonstrations" in capsys.readouterr().err
+    assert load_demos(out)[1]["seeds"] == [3] and load_demos(left)[1]["seeds"] == [5]
+
+
 def test_drs_demos_out_keeps_demonstrations_another_process_wrote_meanwhile(tmp_path, monkeypatch, capsys):
     """The repro: drs-demos --out X while another drs-demos writes X; the second exits 2, both recordings kept."""
     from drs_torchrl.apps import demos as app

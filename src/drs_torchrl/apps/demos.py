@@ -11,6 +11,7 @@ from drs_torchrl.demos import (
     DemosOutTakenError,
     check_demos_out,
     free_demos_path,
+    leftover_notes,
     load_maniskill_h5,
     record_demos,
     record_policy_demos,
@@ -126,9 +127,8 @@ def main(argv: list[str] | None = None) -> int:
                     variant_overrides=overrides or None,
                     control_mode=a.control_mode or fam.control_mode or "pd_joint_pos",
                 )
-        out = a.out or free_demos_path(
-            Path("demos") / f"{fam.name}-{meta['variant']}{'-policy' if a.from_policy else ''}.demos"
-        )
+        named = a.out or Path("demos") / f"{fam.name}-{meta['variant']}{'-policy' if a.from_policy else ''}.demos"
+        out = a.out or free_demos_path(named)
     except (KeyError, UserError, RuntimeError, ValueError, TypeError) as exc:
         print(f"drs-demos: error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
         return 2
@@ -139,6 +139,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"drs-demos: error: {exc}", file=sys.stderr)
             return 2
         out = exc.kept  # the default --out takes the next free name
+    for note in leftover_notes(named):  # kept, never deleted: a whole one may be a recording's only copy
+        print(f"drs-demos: note: {note}", file=sys.stderr)
     lengths = meta["lengths"]
     print(f"{meta['episodes']} demonstrations ({sum(lengths)} states, length {min(lengths)}-{max(lengths)}) -> {out}")
     return 0

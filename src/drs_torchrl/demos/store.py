@@ -166,10 +166,68 @@ def _keep_elsewhere(tmp: Path, path: Path) -> Path:
             return kept
 
 
+def leftover_saves(path: str | Path) -> list[tuple[Path, bool]]:
+    """Folders that a :func:`save_demos` to ``path`` stopped midway (killed, power cut) left beside it, each with
+    whether it holds whole demonstrations: ``NAME.tmp-<pid>`` (the new ones before their swap) and
+    ``NAME.old-<pid>`` (the earlier ones moved aside by a replace). Folders of a process still running here
+    are not listed. Nothing is deleted: a whole one may be the only copy of a recording."""
+    path = Path(path)
+    out = []
+    for p in sorted(path.parent.glob(f"{path.name}.tmp-*")) + sorted(path.parent.glob(f"{path.name}.old-*")):
+        pid = p.name.rpartition("-")[2]
+        if not p.is_dir() or not pid.isdigit() or _running(int(pid)):
+            continue
+        out.append((p, _whole(p)))
+    return out
+
+
+def _running(pid: int) -> bool:
+    """Whether process ``pid`` runs on this machine (a writer on another machine of a shared disk is not seen)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # e.g. another user's process
+        return True
+    return True
+
+
+def _whole(path: Path) -> bool:
+    """Whether ``path`` holds demonstrations that load: a meta.json of this format and every state file whole."""
+    try:
+        meta = json.loads((path / "meta.json").read_text())
+        load_memmap_checked(path / "states")
+    except Exception:
+        return False
+    return isinstance(meta, dict) and meta.get("format") == DEMO_FORMAT
+
+
+def _role(p: Path) -> str:
+    return "new demonstrations that had not taken the name yet" if ".tmp-" in p.name else "the ones it replaced"
+
+
+def leftover_notes(path: str | Path) -> list[str]:
+    """One line per :func:`leftover_saves` folder beside ``path``: what it holds and what to do with it."""
+    return [
+        f"{p} holds {_role(p)}, left whole by a save to {Path(path).name} that stopped midway; "
+        f"use them (mv {p} OTHER.demos) or delete the folder"
+        if whole
+        else f"{p} is what a stopped save to {Path(path).name} left half written; delete it (rm -r {p})"
+        for p, whole in leftover_saves(path)
+    ]
+
+
 def load_demos(path: str | Path) -> tuple[list[TensorDict], dict]:
     """Episodes (each a ``(T,)`` TensorDict of states) and the file's metadata."""
     path = Path(path)
     if not (path / "meta.json").is_file():
+        whole = [p for p, ok in leftover_saves(path) if ok]
+        if whole and not path.exists():  # a replace stopped between its two renames (or a save before its one)
+            raise DemoError(
+                f"{path} does not exist, but a drs-demos save to it stopped midway and left "
+                + " and ".join(f"{_role(p)} at {p}" for p in whole)
+                + f": move the one you want into place (mv {whole[0]} {path}), or record them again"
+            )
         raise DemoError(f"{path} is not a drs-torchrl demonstrations directory (no meta.json); make one with drs-demos")
     try:
         meta = json.loads((path / "meta.json").read_text())
