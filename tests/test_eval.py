@@ -85,8 +85,8 @@ def test_eval_episode_seed_fixes_each_episode_start(trained, tmp_path):
     "args,message",
     [
         (["--split", "cube_9cm"], "no variant 'cube_9cm'"),
-        (["--episodes", "0"], "--episodes must be >= 1"),
-        (["--episode-seed", "-1"], "--episode-seed must be >= 0"),
+        (["--episodes", "0"], "argument --episodes: must be >= 1, got 0"),
+        (["--episode-seed", "-1"], "argument --episode-seed: must be >= 0, got -1"),
     ],
 )
 def test_eval_bad_input_is_one_line(trained, args, message):

@@ -12,6 +12,8 @@ survives a closed pipe.
   :func:`in_quiet_worker` / ``DRS_QUIET_LIBRARIES``) in its collector workers; :func:`library_prints`
   counts what a library prints (the motion planner's "screw plan failed"). ``logger.library_messages=true``
   (or ``DRS_LIBRARY_MESSAGES=1``) shows them again.
+* :func:`at_least` is the ``type`` of the apps' count options (``--jobs``, ``--episodes``, ...): argparse
+  then refuses ``--jobs 0`` naming the option, instead of a run that starts nothing and blames something else.
 * :func:`survive_closed_output` makes ``sys.stdout``/``sys.stderr`` swallow a broken pipe: with
   ``drs-learn ... | tee log`` and Ctrl-C, ``tee`` dies first and every later write would raise
   ``BrokenPipeError``, which used to abort the run before its final save. Once a stream breaks,
@@ -21,6 +23,7 @@ survives a closed pipe.
 
 from __future__ import annotations
 
+import argparse
 import collections
 import contextlib
 import errno
@@ -46,6 +49,21 @@ def _library_user_errors() -> tuple[type, ...]:
     if "yaml" in sys.modules:
         found.append(sys.modules["yaml"].YAMLError)
     return tuple(found)
+
+
+def at_least(minimum: int):
+    """An argparse ``type``: an integer >= ``minimum`` (argparse's error names the option and exits 2)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be a whole number, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
+        return value
+
+    return parse
 
 
 def one_line(text) -> str:

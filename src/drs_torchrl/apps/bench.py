@@ -33,7 +33,7 @@ from pathlib import Path
 
 import torch
 
-from drs_torchrl.console import console_script
+from drs_torchrl.console import at_least, console_script
 
 
 def bench_raw_sim(env_id: str, steps: int, env_kwargs: dict, control_mode: str) -> float:
@@ -458,9 +458,9 @@ def parse_algo(spec: str, default_precisions) -> tuple[str, list[str]]:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="drs-bench", description=__doc__.split("\n")[0])
     p.add_argument("--family", default="pick_cube")
-    p.add_argument("--raw-steps", type=int, default=3000)
-    p.add_argument("--collect-steps", type=int, default=3008)
-    p.add_argument("--learn-frames", type=int, default=2048)
+    p.add_argument("--raw-steps", type=at_least(1), default=3000)
+    p.add_argument("--collect-steps", type=at_least(1), default=3008)
+    p.add_argument("--learn-frames", type=at_least(1), default=2048)
     p.add_argument(
         "--algos",
         nargs="*",
@@ -493,13 +493,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--stage-sizes",
         nargs="*",
-        type=int,
+        type=at_least(1),
         default=[1_000, 10_000, 100_000, 1_000_000],
         help="stage-buffer sizes for the sampling-time sweep (empty: skip the component timings)",
     )
     p.add_argument(
         "--learning-starts",
-        type=int,
+        type=at_least(0),
         default=None,
         metavar="N",
         help="override algo.learning_starts, the untimed warm-up of the phase-1 rows (smoke runs only)",
@@ -509,7 +509,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-compile", action="store_true", help="skip the algo.compile=true timing of the components")
     p.add_argument(
         "--checkpoint",
-        type=int,
+        type=at_least(0),
         default=0,
         metavar="N",
         help="also measure the training-state checkpoint of a run holding N transitions (e.g. 1000000)",

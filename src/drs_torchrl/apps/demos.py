@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from drs_torchrl.console import UserError, console_script
+from drs_torchrl.console import UserError, at_least, console_script
 from drs_torchrl.demos import (
     DemosOutTakenError,
     check_demos_out,
@@ -34,7 +34,9 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="variant name, or train/test (default: train; with --from-policy, the split the run trained on)",
     )
-    p.add_argument("--num", type=int, default=None, help="default: 100 recorded; all successful ones of --from-h5")
+    p.add_argument(
+        "--num", type=at_least(1), default=None, help="default: 100 recorded; all successful ones of --from-h5"
+    )
     p.add_argument(
         "--from-h5",
         type=Path,
@@ -51,7 +53,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument("--stochastic", action="store_true", help="--from-policy: sample actions instead of the mean action")
     p.add_argument(
-        "--max-episodes", type=int, default=None, help="--from-policy: give up after this many (default 20 x --num)"
+        "--max-episodes",
+        type=at_least(1),
+        default=None,
+        help="--from-policy: give up after this many (default 20 x --num)",
     )
     p.add_argument(
         "--override",
@@ -85,8 +90,6 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument("--force", action="store_true", help="replace the demonstrations already at --out")
     a = p.parse_args(argv)
-    if a.num is not None and a.num < 1:
-        p.error("--num must be >= 1")
     if a.from_policy is not None and a.from_h5 is not None:
         p.error("--from-policy and --from-h5 are two different sources; give one")
     import yaml

@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from drs_torchrl.checkpoint import atomic_write_text
-from drs_torchrl.console import UserError, console_script
+from drs_torchrl.console import UserError, at_least, console_script
 from drs_torchrl.rundir import check_writable, load_run_config
 
 
@@ -235,7 +235,7 @@ def report_path(res: dict) -> tuple[Path, Path | None]:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="drs-eval", description=__doc__.split("\n")[0])
     p.add_argument("run_dir", help="a drs-learn / drs-reuse run directory (or its checkpoints/policy.pt)")
-    p.add_argument("--episodes", type=int, default=10)
+    p.add_argument("--episodes", type=at_least(1), default=10)
     p.add_argument("--split", default=None, help="train | test | a variant name (default: the run's split)")
     p.add_argument(
         "--override", action="append", default=[], metavar="K=V", help="a variant parameter, e.g. cube_half_size=0.016"
@@ -244,7 +244,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=12345, help="the env's seed (its first reset)")
     p.add_argument(
         "--episode-seed",
-        type=int,
+        type=at_least(0),
         default=None,
         metavar="S",
         help="reset episode i with seed S+i: the same starts in every call and every run (as eval.episode_seed)",

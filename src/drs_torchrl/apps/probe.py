@@ -30,7 +30,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from drs_torchrl.console import console_script
+from drs_torchrl.console import at_least, console_script
 import torch
 
 
@@ -172,7 +172,7 @@ def main(argv=None) -> int:
         default=["train", "test"],
         help="splits or variant names to roll out on (default: train test)",
     )
-    p.add_argument("--episodes", type=int, default=20, help="episodes per split (default 20)")
+    p.add_argument("--episodes", type=at_least(1), default=20, help="episodes per split (default 20)")
     p.add_argument("--deterministic", action="store_true", help="the mean action (default: sampled actions)")
     p.add_argument("--seed", type=int, default=0, help="seeds the env and the sampled actions (default 0)")
     p.add_argument(

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drs_torchrl.console import console_script
+from drs_torchrl.console import at_least, console_script
 from drs_torchrl.rundir import read_run_csv
 
 
@@ -143,7 +143,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument("--split", default=None, help="with --reward-episode: train | test | a variant (default: the run's)")
     p.add_argument(
-        "--tries", type=int, default=10, help="with --reward-episode: episodes tried; the furthest-reaching is drawn"
+        "--tries",
+        type=at_least(1),
+        default=10,
+        help="with --reward-episode: episodes tried; the furthest-reaching is drawn",
     )
     a = p.parse_args(argv)
     try:

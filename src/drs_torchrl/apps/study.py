@@ -78,7 +78,7 @@ from pathlib import Path
 
 import yaml
 
-from drs_torchrl.console import console_script
+from drs_torchrl.console import at_least, console_script
 from drs_torchrl.errors import UserError
 
 
@@ -703,9 +703,13 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="drs-study", description=__doc__.split("\n")[0])
     p.add_argument("study", help="study YAML file")
     p.add_argument(
-        "--jobs", "-j", type=int, default=2, help="runs side by side (default 2: one per core of a 2-core machine)"
+        "--jobs",
+        "-j",
+        type=at_least(1),
+        default=2,
+        help="runs side by side (default 2: one per core of a 2-core machine)",
     )
-    p.add_argument("--threads", type=int, default=1, help="torch threads per run (default 1)")
+    p.add_argument("--threads", type=at_least(1), default=1, help="torch threads per run (default 1)")
     p.add_argument("--status", action="store_true", help="print each run's state and exit")
     p.add_argument("--only", nargs="*", default=None, help="run only these run names")
     p.add_argument(
