@@ -173,6 +173,20 @@ def test_bad_inputs_name_what_is_wrong(tmp_path, capsys):
     assert not (tmp_path / "out2").exists()
 
 
+def test_a_run_given_twice_is_refused_not_counted_as_two_seeds(tmp_path, capsys, monkeypatch):
+    """A shell glob that names a run twice (``runs/*/ runs/sparse*``) had made one run "2 (0, 0)" seeds."""
+    a = make_run(tmp_path, "a", "sparse", 0, [0.5], [0.5])
+    monkeypatch.chdir(tmp_path)
+    assert main(["a", str(a) + "/", "--out", "out"]) == 2
+    assert (
+        capsys.readouterr().err
+        == f"drs-compare: error: run directory {a} is given twice (as a and {a}): give each run once\n"
+    )
+    with pytest.raises(CompareError, match="is given twice: give each run once"):
+        compare([a, a], tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
 def test_groups_beyond_ten_keep_distinct_styles():
     """Matplotlib's colour cycle repeats after 10; the pick study plots 14 groups and must tell them apart."""
     styles = [(s["color"], s["linestyle"]) for s in map(group_style, range(40))]

@@ -30,3 +30,13 @@ def test_a_count_of_zero_is_refused_naming_the_option(module, argv, message, cap
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err
     assert list(tmp_path.iterdir()) == []  # refused before anything was written
+
+
+def test_drs_plot_reward_episode_refuses_more_than_one_run(capsys):
+    """It draws the first run's episode only; the others had been ignored without a word."""
+    from drs_torchrl.apps.reporting import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["a", "b", "--reward-episode"])
+    assert e.value.code == 2
+    assert "--reward-episode draws one run's episode; give one run directory, not 2" in capsys.readouterr().err

@@ -263,6 +263,12 @@ def compare(
         raise CompareError("no run directories given")
     if labels is not None and len(labels) != len(run_dirs):
         raise CompareError(f"{len(labels)} labels for {len(run_dirs)} run directories")
+    seen: dict[Path, Path] = {}
+    for r in map(Path, run_dirs):  # a run counted twice would pass for two seeds in mean +- std
+        first = seen.setdefault(r.resolve(), r)
+        if first is not r:
+            same = "twice" if first == r else f"twice (as {first} and {r})"
+            raise CompareError(f"run directory {r.resolve()} is given {same}: give each run once")
     groups = group_runs(
         [load_run(Path(r), tuple(group_by), None if labels is None else labels[i]) for i, r in enumerate(run_dirs)]
     )

@@ -149,6 +149,8 @@ def main(argv: list[str] | None = None) -> int:
         help="with --reward-episode: episodes tried; the furthest-reaching is drawn",
     )
     a = p.parse_args(argv)
+    if a.reward_episode and len(a.runs) > 1:
+        p.error(f"--reward-episode draws one run's episode; give one run directory, not {len(a.runs)}")
     try:
         if a.reward_episode:
             from drs_torchrl.console import quiet_libraries
