@@ -58,6 +58,14 @@ def test_grid_names_runs_and_passes_every_override(tmp_path):
         ({"grid": {"seed": [0]}}, "root"),
         ({"root": "r"}, "no runs"),
         ({"root": "r", "runs": [{"name": "a"}, {"name": "a"}]}, "appear twice"),
+        # the seed left unchanged in a copied line: a "second seed" that is the same run (a later override wins)
+        (
+            {
+                "root": "r",
+                "runs": [{"name": "x_s0", "args": ["seed=0"]}, {"name": "x_s1", "args": ["seed=1", "seed=0"]}],
+            },
+            "runs x_s0 and x_s1 have the same app and settings, so they would train the same run twice",
+        ),
         ({"root": "r", "runs": [{"name": "a", "needs": ["b"]}]}, "needs \\['b'\\]"),
         ({"root": "r", "runs": [{"name": "a", "app": "train"}]}, "learn or reuse"),
         ({"root": "r", "gird": {}}, "unknown keys"),
@@ -85,7 +93,7 @@ def test_grid_names_runs_and_passes_every_override(tmp_path):
         (
             {
                 "root": "r",
-                "runs": [{"name": "a_s0"}, {"name": "b_s0"}],
+                "runs": [{"name": "a_s0"}, {"name": "b_s0", "args": ["seed=1"]}],
                 "figures": {"m": {"groups": ["a", "b"], "labels": {"a": "b"}}},
             },
             "drawn as one",
@@ -203,10 +211,10 @@ def test_report_copies_the_record_and_compares_by_run_name(tmp_path, capsys):
             "common": ["total_frames=3000"],
             "runs": [
                 {"name": "learn_s0", "app": "learn", "args": []},
-                {"name": "drs_s0", "args": []},
-                {"name": "drs_s1", "args": []},
-                {"name": "one_stage_s0", "args": []},  # reward.name drs too: grouped by its name, not its config
-                {"name": "sparse_s0", "args": []},
+                {"name": "drs_s0", "args": ["seed=0"]},
+                {"name": "drs_s1", "args": ["seed=1"]},
+                {"name": "one_stage_s0", "args": ["ablation=one_stage"]},  # reward.name drs too: grouped by its name
+                {"name": "sparse_s0", "args": ["reward=sparse"]},
                 {"name": "dense-train_s0", "args": ["env.split=train"]},
             ],
         },
@@ -264,11 +272,11 @@ def test_report_draws_the_study_files_figures_with_their_groups_order_and_labels
             "app": "reuse",
             "common": ["total_frames=3000"],
             "runs": [
-                {"name": "drs_s0", "args": []},
-                {"name": "drs_s1", "args": []},
-                {"name": "sparse_s0", "args": []},
-                {"name": "ablation_s0", "args": []},
-                {"name": "gail_s0", "args": []},
+                {"name": "drs_s0", "args": ["seed=0"]},
+                {"name": "drs_s1", "args": ["seed=1"]},
+                {"name": "sparse_s0", "args": ["reward=sparse"]},
+                {"name": "ablation_s0", "args": ["ablation=one_stage"]},
+                {"name": "gail_s0", "args": ["reward=gail"]},
             ],
             "figures": {
                 "main": {"title": "held-out variants", "groups": ["sparse", "drs", "gail"], "labels": {"drs": "DrS"}},
@@ -317,8 +325,8 @@ def test_a_fresh_checkout_skips_what_its_record_holds_and_reuses_its_rewards(tmp
                     "args": ["reward.checkpoint=<reward:learn_s0>", "init_from=<policy:learn_s0>"],
                     "needs": ["learn_s0"],
                 },
-                {"name": "sparse_s0", "args": []},
-                {"name": "dense_s0", "args": []},
+                {"name": "sparse_s0", "args": ["reward=sparse"]},
+                {"name": "dense_s0", "args": ["reward=dense"]},
             ],
         },
     )

@@ -149,6 +149,15 @@ def load_study(path: str | Path) -> tuple[Path, list[Run]]:
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         raise StudyError(f"{path}: run names {dup} appear twice")
+    same: dict[tuple, str] = {}
+    for r in runs:  # a copy-paste slip (the seed left unchanged) would pass for a second seed of the same setting
+        settings = dict(a.partition("=")[::2] for a in r.args)  # Hydra's order: a later override wins
+        twin = same.setdefault((r.app, frozenset(settings.items())), r.name)
+        if twin != r.name:
+            raise StudyError(
+                f"{path}: runs {twin} and {r.name} have the same app and settings, so they would train the same "
+                "run twice; give one of them another seed (seed=N) or remove it"
+            )
     for r in runs:
         if r.app not in ("learn", "reuse"):
             raise StudyError(f"{path}: run {r.name}: app must be learn or reuse, got {r.app!r}")
