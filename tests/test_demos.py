@@ -64,6 +64,9 @@ def test_bad_demo_directories(tmp_path):
     (tmp_path / "other" / "meta.json").write_text("[]")
     with pytest.raises(DemoError, match="unknown format 'a JSON list'"):
         load_demos(tmp_path / "other")
+    (tmp_path / "pick.h5").write_bytes(b"\x89HDF")  # ManiSkill's trajectory file passed as demos.path
+    with pytest.raises(DemoError, match="is a ManiSkill trajectory file, not drs-torchrl demonstrations; convert it"):
+        load_demos(tmp_path / "pick.h5")
 
 
 def fake_demos(*seeds):

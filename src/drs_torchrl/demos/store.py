@@ -228,6 +228,11 @@ def load_demos(path: str | Path) -> tuple[list[TensorDict], dict]:
                 + " and ".join(f"{_role(p)} at {p}" for p in whole)
                 + f": move the one you want into place (mv {whole[0]} {path}), or record them again"
             )
+        if path.is_file() and path.suffix == ".h5":
+            raise DemoError(
+                f"{path} is a ManiSkill trajectory file, not drs-torchrl demonstrations; convert it first: "
+                f"drs-demos --family FAMILY --from-h5 {path} --out {path.with_suffix('.demos')}"
+            )
         raise DemoError(f"{path} is not a drs-torchrl demonstrations directory (no meta.json); make one with drs-demos")
     try:
         meta = json.loads((path / "meta.json").read_text())
