@@ -723,6 +723,31 @@ def test_an_existing_run_directory_is_refused_unless_overwrite(tmp_path):
     assert [int(r["frames"]) for r in csv.DictReader((run / "train.csv").read_text().splitlines())] == [0, 512, 1024]
 
 
+def test_a_refused_drs_maze_keeps_the_runs_hydra_record_and_a_replacing_one_takes_its_place(tmp_path):
+    """Hydra writes .hydra before drs-maze starts: a run refused in a directory holding a run had overwritten that
+    run's record, and one refused in a new directory left a folder holding only .hydra."""
+    exe = Path(sys.executable).parent / "drs-maze"
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "drs_torchrl.apps.maze"]
+
+    def maze(*args):
+        return subprocess.run([*cmd, *args], capture_output=True, text=True, timeout=120, check=False)
+
+    run = tmp_path / "run"
+    (run / ".hydra").mkdir(parents=True)
+    (run / ".hydra" / "config.yaml").write_text("the earlier run's record\n")
+    (run / "summary.json").write_text('{"old": true}')
+    p = maze("phase=reuse", "reward.name=sparse", f"hydra.run.dir={run}", *TINY)
+    assert p.returncode == 2 and "already holds a run" in p.stderr
+    assert sorted(f.name for f in run.iterdir()) == [".hydra", "summary.json"]
+    assert (run / ".hydra" / "config.yaml").read_text() == "the earlier run's record\n"
+    p = maze("total_frames=-1", f"hydra.run.dir={tmp_path / 'new'}")
+    assert p.returncode == 2 and "total_frames must be > 0" in p.stderr and not (tmp_path / "new").exists()
+    p = maze("phase=reuse", "reward.name=sparse", "overwrite=true", f"hydra.run.dir={run}", *TINY)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert (run / ".hydra" / "config.yaml").read_text().startswith("phase: reuse")  # the new run's record, in place
+    assert not list(run.glob(".hydra-*")) and "old" not in (run / "summary.json").read_text()
+
+
 def test_ppo_learns_the_maze_reward_beside_it_and_reuses_it(tmp_path):
     """The maze on the one loop with another algorithm: PPO (ClipPPOLoss + GAE, a categorical policy) in phase 1
     with the discriminator training beside it, its batches rewarded by the discriminator of the moment, then

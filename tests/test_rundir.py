@@ -17,6 +17,7 @@ import pytest
 from drs_torchrl.console import UserError, console_script, library_prints, one_line, report_failure
 from drs_torchrl.rundir import LOCK_NAME, check_writable, lock_run_dir, unlock_run_dir
 
+REPO = Path(__file__).resolve().parents[1]
 LOCK_IN_CHILD = "import sys; from drs_torchrl.rundir import lock_run_dir; lock_run_dir(sys.argv[1]); print('locked')"
 
 
@@ -288,3 +289,24 @@ def test_saved_files_reach_the_disk_before_anything_vouches_for_them(tmp_path, m
     ]
     assert (tmp_path / "run" / "checkpoints" / "state" / "COMPLETE").read_text() == "2"
     assert not (tmp_path / "run" / "checkpoints" / "state.old").exists()
+
+
+@pytest.mark.parametrize("app", ["evaluate", "reporting", "comparison"])
+def test_a_maze_run_given_to_a_maniskill_command_is_named_as_one(app, tmp_path, capsys):
+    """drs-eval had called a drs-maze run's config "damaged", drs-plot failed with 'reward_min', drs-compare tabled it
+    beside ManiSkill runs as "no eval yet"."""
+    import importlib
+
+    maze = tmp_path / "learn"
+    shutil.copytree(REPO / "results/quickstart/seed1/learn", maze)  # a committed drs-quickstart run
+    before = {p.name: p.read_bytes() for p in maze.iterdir() if p.is_file()}
+    main = importlib.import_module(f"drs_torchrl.apps.{app}").main
+    try:
+        code = main([str(maze)])
+    except SystemExit as e:  # the console wrapper's exit for a UserError
+        code = e.code
+    assert code == 2
+    err = capsys.readouterr().err
+    assert f"{maze} is a drs-maze run (the maze's own DQN app), not a drs-learn/drs-reuse run" in err
+    assert f"drs-maze phase=report report.root={tmp_path}" in err and err.count("\n") == 1
+    assert {p.name: p.read_bytes() for p in maze.iterdir() if p.is_file()} == before

@@ -64,6 +64,18 @@ def test_every_shipped_config_passes_its_schema(config, overrides):
         ("env.num_envs=0", "env.num_envs must be > 0, got 0"),
         ("env.max_episode_steps=0", "env.max_episode_steps must be null or > 0, got 0 (null: the family's)"),
         ("env.cpu_batching=threads", "env.cpu_batching must be one of serial, parallel, got 'threads'"),
+        # a section given one value, and the networks' widths: each had been an internal error (StopIteration,
+        # TypeError deep in torch) instead of a setting named
+        (
+            "eval=5",
+            "eval is a section of settings, not one value (got 5); set one of its settings, e.g. eval.interval=",
+        ),
+        ("reward.disc=3", "reward.disc is a section of settings, not one value (got 3)"),
+        ("demos=null", "demos is a section of settings, not one value (got null)"),
+        ("algo.hidden=[abc,16]", "algo.hidden[0] must be an integer, got 'abc' (str); e.g. algo.hidden=[256,256,256]"),
+        ("algo.hidden=64", "algo.hidden must be a list of integers, got 64 (int)"),
+        ("algo.hidden=[0,16]", "algo.hidden must be layer widths, each > 0, got [0, 16]"),
+        ("reward.hidden=[-1]", "reward.hidden must be layer widths, each > 0, got [-1]; e.g. reward.hidden=[32]"),
     ],
 )
 def test_a_bad_value_is_named_with_its_type_or_range_and_an_example(override, message):
@@ -105,6 +117,9 @@ def test_settings_an_algorithm_does_not_have_are_not_demanded():
         ("demos=-1", "demos must be >= 0, got -1"),
         ("overwrite=no", "overwrite must be true or false, got 'no'"),
         ("num_envs=7", "frames_per_batch (256) must be a multiple of num_envs (7)"),  # cross-field, in validate
+        ("eval=5", "eval is a section of settings, not one value (got 5)"),
+        ("dqn.hidden=[0]", "dqn.hidden must be layer widths, each > 0, got [0]"),
+        ("reward.hidden=[a]", "reward.hidden[0] must be an integer, got 'a' (str)"),
     ],
 )
 def test_the_maze_config_uses_the_same_schema_check(override, message):

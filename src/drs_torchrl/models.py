@@ -109,6 +109,10 @@ def read_policy_checkpoint(path: str | Path) -> tuple[Path, dict]:
             f"{file}: cannot be read as a torch file ({exc.__class__.__name__}: {exc})"
         ) from exc
     if not isinstance(ck, dict) or ck.get("format") != POLICY_FORMAT:
+        from drs_torchrl.rundir import maze_run_message
+
+        if maze := maze_run_message(file.parent):  # the maze's DQN agent: its own format and app
+            raise PolicyCheckpointError(f"{file} is the policy of a drs-maze run: {maze}")
         got = ck.get("format") if isinstance(ck, dict) else type(ck).__name__
         raise PolicyCheckpointError(
             f"{file} is not a drs-torchrl policy checkpoint (format {got!r}); pass a run's checkpoints/policy.pt"

@@ -225,6 +225,24 @@ def fsync_path(path: str | os.PathLike) -> None:
         os.close(fd)
 
 
+def maze_run_message(run_dir: str | os.PathLike) -> str | None:
+    """What to say when ``run_dir`` is a ``drs-maze`` run given to a command that reads drs-learn/drs-reuse runs
+    (its config has ``map`` and ``dqn``, no ``env``); ``None`` for any other directory."""
+    import yaml
+
+    try:
+        cfg = yaml.safe_load((Path(run_dir) / "config.yaml").read_text())
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        return None
+    if not (isinstance(cfg, dict) and "map" in cfg and "dqn" in cfg and "env" not in cfg):
+        return None
+    return (
+        f"{run_dir} is a drs-maze run (the maze's own DQN app), not a drs-learn/drs-reuse run: its evaluations are "
+        f"the eval_success column of its train.csv, and drs-maze phase=report report.root={Path(run_dir).parent} "
+        "report.out=DIR draws and tables maze runs"
+    )
+
+
 def load_run_config(run_dir: str | os.PathLike, needs: tuple[str, ...] = ("phase", "env", "reward", "algo")):
     """``RUN_DIR/config.yaml`` as an OmegaConf config, or a :class:`RunFileError` saying what is wrong with it
     (not YAML, or without the sections ``needs``)."""
@@ -249,7 +267,7 @@ def load_run_config(run_dir: str | os.PathLike, needs: tuple[str, ...] = ("phase
         raise RunFileError(f"{path} cannot be read ({exc.__class__.__name__}: {exc}); {fix}") from None
     missing = [k for k in needs if not isinstance(cfg, DictConfig) or k not in cfg]
     if missing:
-        raise RunFileError(f"{path} is damaged: it lacks {', '.join(missing)}; {fix}")
+        raise RunFileError(maze_run_message(run_dir) or f"{path} is damaged: it lacks {', '.join(missing)}; {fix}")
     return cfg
 
 

@@ -13,11 +13,8 @@ from __future__ import annotations
 
 import errno
 import functools
-import os
-import shutil
 import signal
 import sys
-from datetime import datetime
 from pathlib import Path
 
 import hydra
@@ -25,6 +22,13 @@ import yaml
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
+from drs_torchrl.apps.hydra_record import (  # noqa: F401 (registers the configs' resolvers)
+    RUN_MARKERS,
+    current_record,
+    discard_refused_record,
+    holds_run,
+    replaced,
+)
 from drs_torchrl.config_dir import conf_dir  # noqa: F401 (the CLI's config path; re-exported)
 from drs_torchrl.console import UserError, console_script, user_error_message
 from drs_torchrl.errors import ConfigError
@@ -32,62 +36,14 @@ from drs_torchrl.rundir import (
     OldRun,
     clear_for_new_run,
     DiskFullError,
-    RunDirBusyError,
     RunFileError,
     load_run_config,
+    maze_run_message,
     lock_run_dir,
     unlock_run_dir,
 )
 
 GROUPS = ("env", "reward", "algo", "logger")
-# files by which a directory is recognised as holding a run (Hydra's own .hydra/ is not one: it
-# writes that for the new run before the app starts)
-RUN_MARKERS = ("config.yaml", "summary.json", "train.csv", "eval.csv", "checkpoints")
-
-
-def _run_dir_resolver(resume, default):
-    return str(resume) if resume else default
-
-
-_STARTED = datetime.now().strftime("%Y%m%d-%H%M%S")  # one stamp per process: resolvers run more than once
-
-
-def _job_dir() -> str | None:
-    """The directory of the Hydra job being started (None outside one, e.g. ``--cfg``)."""
-    try:
-        out = HydraConfig.get().runtime.output_dir
-    except Exception:  # noqa: BLE001 (no Hydra job: nothing to lock)
-        return None
-    return str(out) if out else None
-
-
-_REFUSED: dict[str, str] = {}  # job directory -> the side record of a job refused there (another process writes it)
-
-
-def _hydra_subdir_resolver(resume, run_dir=None):
-    """Where Hydra writes its record: ``.hydra`` for a new run, but never over another run's record
-    (a resume, or a new run pointed at a directory that holds a run, writes beside it).
-
-    Hydra asks for this just before it writes the record, so the run directory's lock is taken here; a
-    directory another process holds gets the record beside, and the app then refuses and removes it."""
-    job = _job_dir()
-    if job is not None and job in _REFUSED:
-        return _REFUSED[job]  # asked again by the app: the same answer, even if the other writer is gone by now
-    if job is not None:
-        try:
-            lock_run_dir(job)
-        except RunDirBusyError:
-            _REFUSED[job] = f".hydra-refused-{os.getpid()}"
-            return _REFUSED[job]
-    if resume:
-        return ".hydra-resume-" + _STARTED
-    if run_dir and _holds_run(Path(str(run_dir))):
-        return ".hydra-new-" + _STARTED
-    return ".hydra"
-
-
-OmegaConf.register_new_resolver("drs_run_dir", _run_dir_resolver, replace=True)
-OmegaConf.register_new_resolver("drs_hydra_subdir", _hydra_subdir_resolver, replace=True)
 
 
 class ResumeError(UserError, ValueError):
@@ -127,6 +83,8 @@ def resume_config(run_dir: Path, phase: str, overrides: list[str], composed: Dic
         saved = load_run_config(run_dir, needs=("phase",))
     except RunFileError as exc:
         raise ResumeError(f"cannot resume: {exc}") from None
+    if maze := maze_run_message(run_dir):  # a maze run keeps no training state: nothing to resume
+        raise ResumeError(f"cannot resume: {maze}; a maze run is not resumed, it is run again (minutes)")
     if saved.get("phase") != phase:
         raise ResumeError(f"{run_dir} is a drs-{saved.get('phase')} run; resume it with drs-{saved.get('phase')}")
     for o in overrides:
@@ -194,23 +152,6 @@ def check_fresh_run_dir(run_dir: Path, phase: str, overwrite: bool) -> OldRun:
     )
 
 
-def _holds_run(run_dir: Path) -> bool:
-    return any((run_dir / m).exists() for m in RUN_MARKERS)
-
-
-def replaced(run_dir: Path, old: OldRun) -> None:
-    """The new run has started: the old run's files go, and this run's Hydra record becomes the directory's ``.hydra``."""
-    if not old:
-        return
-    old.drop()
-    for stale in run_dir.glob(".hydra-resume-*"):
-        shutil.rmtree(stale, ignore_errors=True)
-    new = sorted(run_dir.glob(".hydra-new-*"))
-    if new:
-        shutil.rmtree(run_dir / ".hydra", ignore_errors=True)
-        new[-1].rename(run_dir / ".hydra")
-
-
 def check_reused_reward_overrides(cfg: DictConfig, phase: str, overrides: list[str]) -> None:
     """Refuse a ``reward.formula`` / ``alpha`` / ``offset`` / ``hidden`` / ``activation`` / ``in_keys`` override of
     drs-reuse that is not what its ``reward.checkpoint`` was learned with: a reused reward is the frozen one as it
@@ -244,7 +185,7 @@ def _run(cfg: DictConfig, phase: str) -> None:
     from drs_torchrl.apps.build import Run
 
     run_dir = HydraConfig.get().runtime.output_dir
-    record = Path(run_dir) / HydraConfig.get().output_subdir if HydraConfig.get().output_subdir else None
+    record = current_record(run_dir)
     locked, runner, old = [], None, None
     try:
         resume = bool(cfg.get("resume"))
@@ -276,19 +217,8 @@ def _run(cfg: DictConfig, phase: str) -> None:
         if msg is None:
             raise
         print(f"drs-{phase}: error: {msg}", file=sys.stderr)
-        if (
-            not _disk_full(exc)
-            and record is not None
-            and record.name.startswith((".hydra-resume-", ".hydra-new-", ".hydra-refused-"))
-        ):
-            shutil.rmtree(record, ignore_errors=True)  # a failed resume leaves the run as it was
-            if not locked:
-                try:
-                    record.parent.rmdir()  # only if Hydra made it for a path that was not a run
-                except OSError:
-                    pass
-        elif record is not None and record.name == ".hydra" and not resume and not _holds_run(Path(run_dir)):
-            shutil.rmtree(record, ignore_errors=True)  # a refused new run leaves no folder holding only Hydra's record
+        # a failed resume leaves the run as it was, a refused new run no folder (a full disk: its resume record stays)
+        discard_refused_record(record, resume=resume, locked=bool(locked), keep_side_record=_disk_full(exc))
         if old:  # the new run did not start: the run it was to replace is put back
             old.restore()
         for d in locked:  # a directory made for this run that holds nothing else goes too

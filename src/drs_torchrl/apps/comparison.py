@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from drs_torchrl.console import console_script
-from drs_torchrl.rundir import read_run_csv
+from drs_torchrl.rundir import maze_run_message, read_run_csv
 from drs_torchrl.errors import UserError
 
 DEFAULT_GROUP_BY = ("reward.name",)
@@ -73,6 +73,8 @@ def load_run(run: Path, group_by: tuple[str, ...] = DEFAULT_GROUP_BY, label: str
     from omegaconf import OmegaConf
 
     run = Path(run)
+    if maze := maze_run_message(run):
+        raise CompareError(maze)
     if not (run / "train.csv").exists():
         raise CompareError(f"{run} has no train.csv: is it a drs-learn/drs-reuse run directory?")
     cfg_path = run / "config.yaml"

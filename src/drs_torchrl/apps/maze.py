@@ -82,13 +82,14 @@ from drs_torchrl.apps.maze_analysis import (  # noqa: F401 (re-exported: the maz
     reward_diagnostics,
     reward_label,
 )
+from drs_torchrl.apps.hydra_record import current_record, discard_refused_record, replaced  # (registers the resolver)
 from drs_torchrl.apps.schema import MazeSchema, check
 from drs_torchrl.config_dir import conf_dir
 from drs_torchrl.console import console_script
 from drs_torchrl.run_logger import RunLogger
 from drs_torchrl.loop import EpisodeWindow, Progress, Schedule, run_algorithm1
 from drs_torchrl.rewards import available_rewards, reused_method, reward_entry
-from drs_torchrl.rundir import OldRun, clear_for_new_run, lock_run_dir
+from drs_torchrl.rundir import OldRun, clear_for_new_run, lock_run_dir, unlock_run_dir
 from drs_torchrl.transforms import ClassifierReward, DrSReward, SemiSparseReward, StageIndicator, load_reward
 
 REWARD_INPUTS = ("state_action", "next_state")  # R(s, a) as the appendix's tabular analysis, or R(s') as Sec. 4.3
@@ -594,7 +595,7 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
     except BaseException:
         old.restore()
         raise
-    old.drop()
+    replaced(run_dir, old)  # the old run's files go; this run's Hydra record becomes the directory's .hydra
     scale = float(a.get("reward_scale", 1.0))
     # the env writes R(s, a) where the agent does not recompute it: n-step sums (formed when transitions are
     # stored) and PPO's batches (see the module docstring)
@@ -773,6 +774,9 @@ def main(cfg: DictConfig) -> None:
         s = train(cfg, run_dir)
     except (MazeConfigError, ValueError, FileNotFoundError) as exc:
         print(f"drs-maze: error: {exc}", file=sys.stderr)
+        if cfg.phase != "report":  # the refused run leaves the directory as it was (no Hydra record over a run's)
+            discard_refused_record(current_record(run_dir))
+            unlock_run_dir(run_dir, remove_if_empty=True)
         sys.exit(2)
     if s.get("interrupted"):
         print(

@@ -16,10 +16,12 @@ from pathlib import Path
 import numpy as np
 
 from drs_torchrl.console import at_least, console_script
-from drs_torchrl.rundir import read_run_csv
+from drs_torchrl.rundir import maze_run_message, read_run_csv
 
 
 def load(run_dir: Path):
+    if maze := maze_run_message(run_dir):
+        raise ValueError(maze)
     train = read_run_csv(run_dir / "train.csv") if (run_dir / "train.csv").exists() else None
     ev = read_run_csv(run_dir / "eval.csv") if (run_dir / "eval.csv").exists() else None
     if train is None:

@@ -13,9 +13,10 @@ here, every path gives the same one-line error (exit code 2).
 """
 
 import dataclasses  # no `from __future__ import annotations`: the fields' types are read at run time
+import re
 import typing
 from dataclasses import dataclass, field
-from typing import Any, Optional
+from typing import Any, List, Optional
 
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
@@ -77,6 +78,7 @@ class AlgoSchema:
     gamma: float = setting(gt=0, le=1, example=0.8)
     tau: float = setting(gt=0, le=1, example=0.005)
     compile: bool = setting(example=False)
+    hidden: List[int] = setting(gt=0, example="[256,256,256]", noun="layer widths, each")
     optim: OptimSchema = field(default_factory=OptimSchema)
 
 
@@ -95,6 +97,7 @@ class RewardSchema:
     name: str = setting()
     alpha: float = setting(example=0.3333)
     stage_buffer_size: int = setting(gt=0, example=1000000)
+    hidden: List[int] = setting(gt=0, example="[32]", noun="layer widths, each")
     disc: Optional[DiscSchema] = None  # learned rewards only
 
 
@@ -142,6 +145,7 @@ class MazeDQNSchema:
     eps_init: float = setting(ge=0, le=1, example=1.0)
     eps_end: float = setting(ge=0, le=1, example=0.05)
     eps_anneal_frac: float = setting(gt=0, le=1, example=0.5)
+    hidden: List[int] = setting(gt=0, example="[64,64]", noun="layer widths, each")
 
 
 @dataclass
@@ -153,6 +157,7 @@ class MazePPOSchema:
     batch_size: int = setting(gt=0, example=256)
     epochs: int = setting(gt=0, example=4)
     reward_scale: float = setting(gt=0, example=1.0)
+    hidden: List[int] = setting(gt=0, example="[64,64]", noun="layer widths, each")
 
 
 @dataclass
@@ -171,6 +176,7 @@ class MazeRewardSchema:
     reuse_alpha: Optional[float] = setting(ge=0, lt=0.5, example=0.0, hint="(0 keeps only DrS's constant part)")
     stage_buffer_size: int = setting(gt=0, example=20000)
     dense_coef: float = setting(ge=0, example=1.0)
+    hidden: List[int] = setting(gt=0, example="[32]", noun="layer widths, each")
     disc: MazeDiscSchema = field(default_factory=MazeDiscSchema)
 
 
@@ -208,33 +214,62 @@ def check(cfg: DictConfig, schema: type, error: type[Exception] = ConfigError) -
 
     Keys the schema does not declare pass; a declared key absent from ``cfg`` (a setting its algorithm or reward
     does not have) is not checked."""
+    _check_sections(cfg, schema, error)
     view = OmegaConf.create(_project(cfg, schema))
     try:
         typed = OmegaConf.merge(OmegaConf.structured(schema), view)
     except ValidationError as exc:
         key = exc.full_key
+        base = re.sub(r"\[\d+\]$", "", key)  # an element of a list setting: the list's field
+        f = _field(schema, base)
+        if f is None:  # not one setting: say what OmegaConf said rather than fail on it
+            raise error(f"{key or 'the config'}: {exc.msg}") from None
         value = OmegaConf.select(view, key)
         value = OmegaConf.to_container(value) if OmegaConf.is_config(value) else value
-        f = _field(schema, key)
         raise error(
-            f"{key} must be {_kind(f)}, got {value!r} ({type(value).__name__}); e.g. {key}={_example(f)}"
+            f"{key} must be {_kind(f, element=base != key)}, got {value!r} ({type(value).__name__}); "
+            f"e.g. {base}={_example(f)}"
         ) from None
     for key, f in _leaves(schema):
         if OmegaConf.select(typed, key, default=None) is None or OmegaConf.is_missing(typed, key):
             continue
         given = OmegaConf.select(view, key)
+        given = OmegaConf.to_container(given) if OmegaConf.is_config(given) else given
         if f.type is bool and not isinstance(given, bool):  # OmegaConf reads "no", "off", 0 as false; Python as true
             raise error(
                 f"{key} must be true or false, got {given!r} ({type(given).__name__}); e.g. {key}={_example(f)}"
             )
-        bad = _out_of_range(OmegaConf.select(typed, key), f.metadata)
+        value = OmegaConf.select(typed, key)
+        bad = next(
+            filter(None, (_out_of_range(v, f.metadata) for v in (value if OmegaConf.is_list(value) else [value]))), None
+        )
         if bad:
             m = f.metadata
             what = ("null or " if type(None) in typing.get_args(f.type) else "") + (
                 m["noun"] + " " if m["noun"] else ""
             )
             hint = f" {m['hint']}" if m["hint"] else f"; e.g. {key}={_example(f)}"
-            raise error(f"{key} must be {what}{bad}, got {OmegaConf.select(view, key)}{hint}")
+            raise error(f"{key} must be {what}{bad}, got {given}{hint}")
+
+
+def _check_sections(cfg: DictConfig, schema: type, error: type[Exception], prefix: str = "") -> None:
+    """A section given one value (``eval=5``: Hydra accepts it) is named as a section; OmegaConf's merge error
+    names no key."""
+    for f in dataclasses.fields(schema):
+        sub = _dataclass_of(f)
+        if sub is None or f.name not in cfg or OmegaConf.is_missing(cfg, f.name):
+            continue
+        value = cfg[f.name]
+        if value is None and type(None) in typing.get_args(f.type):
+            continue
+        if not isinstance(value, DictConfig):
+            first = dataclasses.fields(sub)[0]
+            given = "null" if value is None else OmegaConf.to_container(value) if OmegaConf.is_config(value) else value
+            raise error(
+                f"{prefix}{f.name} is a section of settings, not one value (got {given}); set one of its settings, "
+                f"e.g. {prefix}{f.name}.{first.name}={_example(first)}"
+            )
+        _check_sections(value, sub, error, f"{prefix}{f.name}.")
 
 
 def _project(cfg: DictConfig, schema: type) -> dict:
@@ -268,16 +303,20 @@ def _leaves(schema: type, prefix: str = ""):
             yield prefix + f.name, f
 
 
-def _field(schema: type, key: str) -> dataclasses.Field:
+def _field(schema: type | None, key: str) -> dataclasses.Field | None:
+    """The schema field at the dotted ``key``; ``None`` where the schema has none (e.g. ``""``, ``hidden[0]``)."""
     head, _, rest = key.partition(".")
-    f = next(f for f in dataclasses.fields(schema) if f.name == head)
-    return _field(_dataclass_of(f), rest) if rest else f
+    f = next((f for f in dataclasses.fields(schema) if f.name == head), None) if schema is not None else None
+    return _field(_dataclass_of(f), rest) if rest and f is not None else f
 
 
-def _kind(f: dataclasses.Field) -> str:
+def _kind(f: dataclasses.Field, element: bool = False) -> str:
+    """What ``f`` holds, in words (``element``: what one entry of a list setting holds)."""
     ann = f.type
     args = [a for a in typing.get_args(ann) if a is not type(None)] or [ann]
     words = {int: "an integer", float: "a number", str: "a string", bool: "true or false"}
+    if typing.get_origin(ann) is list:
+        return words[args[0]] if element else f"a list of {words[args[0]].split(' ', 1)[1]}s"
     kind = words.get(args[0], str(args[0]))
     return kind + (" or null" if type(None) in typing.get_args(ann) else "")
 
