@@ -127,6 +127,19 @@ def disk_full(case: Case, d: Path) -> tuple[int, str, bool]:
     return p.returncode, p.stderr, kept
 
 
+def maze_run(case: Case, d: Path) -> tuple[int, str, bool]:
+    """A case on a copy of a committed drs-quickstart maze run (``{maze}``), with a Hydra record of its own."""
+    maze = d / "maze"
+    shutil.copytree(ROOT / "results" / "quickstart" / "seed1" / "learn", maze)
+    (maze / ".hydra").mkdir()
+    (maze / ".hydra" / "config.yaml").write_text("the maze run's own record\n")
+    before = digest(maze)
+    args = [a.replace("{maze}", str(maze)).replace("{d}", str(d)) for a in case.cmd]
+    env = dict(os.environ, PYTHONWARNINGS="ignore")
+    p = subprocess.run(_exe(args), cwd=d, env=env, capture_output=True, text=True, timeout=600)
+    return p.returncode, p.stderr, digest(maze) == before
+
+
 def damage_config(run: Path) -> None:
     with open(run / "config.yaml", "a") as f:
         f.write("env: [unclosed\n")
@@ -270,6 +283,15 @@ def cases(work: Path, good_run: Path) -> list[Case]:
         Case("drs-quickstart into a folder of other files", ["drs-quickstart", "out={good}"]),
         Case("drs-bench of an unknown task family", ["drs-bench", "--family", "pick_banana"]),
         Case("drs-doctor with no usable Vulkan device", ["drs-doctor"], {"VK_ICD_FILENAMES": "{d}/none.json"}),
+        Case("a section given one value", [*L, "eval=5"]),
+        Case("a network width that is not a number", [*L, "algo.hidden=[abc,16]"]),
+        Case("demonstrations path naming a ManiSkill .h5 file", [*L, f"demos.path={work / 'trajectory.h5'}"]),
+        Case("drs-eval of a drs-maze run", ["drs-eval", "{maze}"], run=maze_run),
+        Case("drs-learn resume= of a drs-maze run", ["drs-learn", "resume={maze}"], run=maze_run),
+        Case("drs-maze into a directory holding a maze run", ["drs-maze", "hydra.run.dir={maze}"], run=maze_run),
+        Case("drs-compare naming one run twice", ["drs-compare", "{good}", "{good}/", "--out", "{d}/cmp"]),
+        Case("drs-study with two runs of the same settings", ["drs-study", str(work / "twin_study.yaml")]),
+        Case("drs-study --jobs 0", ["drs-study", str(work / "typo_study.yaml"), "--jobs", "0"]),
     ]
 
 
@@ -321,6 +343,12 @@ def prepare(work: Path) -> Path:
         f"root: {work / 'typo_study_runs'}\napp: learn\ncommon: [{', '.join(TINY)}]\n"
         "runs:\n  - {name: good, args: [seed=0]}\n  - {name: typo, args: [algo.batchsize=64]}\n"
     )
+    # a study whose second run is the first one copied with its seed unchanged
+    (work / "twin_study.yaml").write_text(
+        f"root: {work / 'typo_study_runs'}\napp: learn\ncommon: [{', '.join(TINY)}]\n"
+        "runs:\n  - {name: a_s0, args: [seed=0]}\n  - {name: a_s1, args: [seed=0]}\n"
+    )
+    (work / "trajectory.h5").write_bytes(b"\x89HDF\r\n\x1a\n")  # the start of an HDF5 file
     return good_run
 
 
