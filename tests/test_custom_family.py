@@ -41,6 +41,28 @@ def test_config_family_errors_name_the_fix():
         family_from_config(env_cfg(family="no_test", test_variants=[])).split_variants("test")
 
 
+@pytest.mark.parametrize(
+    "over,message",
+    [  # one value where a list or a mapping belongs: a string had been read letter by letter, a number had crashed
+        ({"stage_keys": "success"}, "env.stage_keys must be a list, e.g. env.stage_keys=[success], got 'success'"),
+        ({"train_variants": "default"}, "env.train_variants must be a list, e.g. env.train_variants=[default]"),
+        ({"variants": 5}, "env.variants must map each variant's name to its parameters"),
+        ({"variants": {"big": 3}}, "env.variants.big must be a mapping of the env's parameters"),
+    ],
+)
+def test_config_family_refuses_one_value_where_a_list_or_mapping_belongs(over, message):
+    with pytest.raises(ValueError) as e:
+        family_from_config(OmegaConf.merge(env_cfg(family="one_value"), over))
+    assert message in str(e.value)
+
+
+def test_a_stage_ablation_given_one_stage_as_a_string_is_refused():
+    from drs_torchrl.tasks import with_stages
+
+    with pytest.raises(ValueError, match=r"env.stages must be a list, e.g. env.stages=\[success\], got 'success'"):
+        with_stages(get_family("pick_cube"), "success")
+
+
 def run(cmd, *args, cwd):
     return subprocess.run([str(BIN / cmd), *args], cwd=cwd, capture_output=True, text=True, timeout=600)
 

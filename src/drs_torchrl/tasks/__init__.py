@@ -272,6 +272,16 @@ CONFIG_FAMILY_FIELDS = (
 )
 
 
+def _names(value, key: str) -> tuple[str, ...]:
+    """A list setting's entries as names; one value where a list belongs is refused (a string would be read letter
+    by letter: ``env.stage_keys=success`` as ``s, u, c, ...``)."""
+    if value is None:
+        return ()
+    if isinstance(value, (str, bytes, int, float, bool)) or hasattr(value, "items") or not hasattr(value, "__iter__"):
+        raise ValueError(f"{key} must be a list, e.g. {key}=[{value}], got {value!r}")
+    return tuple(str(v) for v in value)
+
+
 def family_from_config(env_cfg) -> TaskFamily:
     """The task family of an ``env`` config: a registered one (``env=pick_cube``), or one the config
     defines itself (``env=custom env.family=NAME env.env_id=... env.stage_keys=[...]``), which is
@@ -288,10 +298,16 @@ def family_from_config(env_cfg) -> TaskFamily:
         )
 
     def _list(key):
-        value = env_cfg.get(key)
-        return tuple(str(v) for v in (value or ()))
+        return _names(env_cfg.get(key), f"env.{key}")
 
-    variants = {str(k): dict(v or {}) for k, v in (env_cfg.get("variants") or {"default": {}}).items()}
+    raw = env_cfg.get("variants") or {"default": {}}
+    example = "e.g. env.variants={small: {cube_half_size: 0.015}}"
+    if not hasattr(raw, "items"):
+        raise ValueError(f"env.variants must map each variant's name to its parameters ({example}), got {raw!r}")
+    for k, v in raw.items():
+        if v is not None and not hasattr(v, "items"):
+            raise ValueError(f"env.variants.{k} must be a mapping of the env's parameters ({example}), got {v!r}")
+    variants = {str(k): dict(v or {}) for k, v in raw.items()}
     train = _list("train_variants") or (next(iter(variants)),)
     try:
         family = TaskFamily(
@@ -323,7 +339,7 @@ def with_stages(family: TaskFamily, stages) -> TaskFamily:
     indicators stay info keys; the stage index, ``stage_indicators`` and ``N`` follow the subset."""
     if not stages:
         return family
-    stages = tuple(str(k) for k in stages)
+    stages = _names(stages, "env.stages")
     unknown = [k for k in stages if k not in family.stage_keys]
     if unknown:
         raise ValueError(
