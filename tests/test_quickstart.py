@@ -80,6 +80,15 @@ def test_quickstart_plan_and_bad_settings(tmp_path):
             plan(compose("quickstart", overrides=["baselines=[gail]"]), tmp_path)
         with pytest.raises(QuickstartError, match="must be integers"):
             plan(compose("quickstart", overrides=["seed=abc"]), tmp_path)
+        for override, message in (  # each had started runs that failed (seed=-1) or crashed (a TypeError)
+            ("seed=-1", "seed must be >= 0"),
+            ("learn=5", "learn must be a list of drs-maze overrides"),
+            ("baselines=sparse", "baselines must be a list, e.g. baselines=[sparse,semi_sparse], got 'sparse'"),
+            ("reuse.sparse=x", "reuse maps each phase-2 reward to its drs-maze overrides"),
+        ):
+            with pytest.raises(QuickstartError) as e:
+                plan(compose("quickstart", overrides=[override]), tmp_path)
+            assert message in str(e.value)
     other = tmp_path / "other"
     other.mkdir()
     (other / "config.yaml").write_text("phase: learn\n")  # e.g. a drs-learn run

@@ -47,6 +47,7 @@ def test_every_shipped_config_passes_its_schema(config, overrides):
         ("reward.disc.lr=[1]", "reward.disc.lr must be a number, got [1] (list)"),
         ("eval.episode_seed=first", "eval.episode_seed must be an integer or null, got 'first'"),
         ("total_frames=-5", "total_frames must be > 0, got -5; e.g. total_frames=200000"),
+        ("seed=-1", "seed must be >= 0, got -1 (it seeds numpy, torch and the simulator)"),  # numpy refuses it later
         ("algo.gamma=0", "algo.gamma must be in (0, 1], got 0"),
         ("eval.episode_seed=-1", "eval.episode_seed must be null or >= 0, got -1"),
         ("stop_at_success=1.5", "stop_at_success must be null or a success rate in [0, 1], got 1.5"),

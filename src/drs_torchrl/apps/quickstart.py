@@ -19,6 +19,7 @@ this is its small cousin for a fixed four-run plan with live progress and a summ
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import os
@@ -71,6 +72,21 @@ def plan(cfg: DictConfig, out: Path) -> list[Job]:
         ) from None
     if frames <= 0 or jobs <= 0:
         raise QuickstartError(f"total_frames and jobs must be positive, got {frames} and {jobs}")
+    if seed < 0:
+        raise QuickstartError(f"seed must be >= 0 (it seeds numpy and the maze), got {seed}")
+    for key, what in (
+        ("learn", "drs-maze overrides"),
+        ("common", "drs-maze overrides"),
+        ("extra", "drs-maze overrides"),
+    ):
+        if not OmegaConf.is_list(cfg[key]):
+            raise QuickstartError(f"{key} must be a list of {what}, e.g. {key}=[dqn.lr=0.001], got {cfg[key]!r}")
+    if not OmegaConf.is_list(cfg.baselines):
+        raise QuickstartError(f"baselines must be a list, e.g. baselines=[sparse,semi_sparse], got {cfg.baselines!r}")
+    if not OmegaConf.is_dict(cfg.reuse) or not all(OmegaConf.is_list(v) for v in cfg.reuse.values()):
+        raise QuickstartError(
+            "reuse maps each phase-2 reward to its drs-maze overrides (a list), as conf/quickstart.yaml"
+        )
     unknown = [b for b in cfg.baselines if b not in cfg.reuse or b == "drs"]
     if unknown:
         raise QuickstartError(
@@ -457,6 +473,9 @@ def main(cfg: DictConfig) -> None:
         kept = prepare_out(out, jobs, bool(cfg.overwrite))
     except QuickstartError as exc:
         print(f"drs-quickstart: error: {exc}", file=sys.stderr)
+        unlock_run_dir(out, remove_if_empty=True)  # (if this process took it)
+        with contextlib.suppress(OSError):
+            out.rmdir()  # the folder Hydra made for a refused quickstart, if it holds nothing
         sys.exit(2)
     todo = [j for j in jobs if j.name not in kept]
     print(f"drs-quickstart: DrS on the three-room maze, seed {cfg.seed}, into {out}", flush=True)

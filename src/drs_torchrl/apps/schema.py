@@ -117,7 +117,7 @@ class RunSchema:
     """drs-learn / drs-reuse (``conf/learn.yaml``, ``conf/reuse.yaml`` and their groups)."""
 
     total_frames: int = setting(gt=0, example=200000)
-    seed: int = setting(example=0)
+    seed: int = setting(ge=0, example=0, hint="(it seeds numpy, torch and the simulator)")
     overwrite: bool = setting(example=True)
     checkpoint_interval: int = setting(gt=0, example=20000)
     torch_threads: Optional[int] = setting(gt=0, example=1)
@@ -191,7 +191,7 @@ class MazeSchema:
     """drs-maze (``conf/maze.yaml``)."""
 
     total_frames: int = setting(gt=0, example=200000)
-    seed: int = setting(example=0)
+    seed: int = setting(ge=0, example=0, hint="(it seeds numpy, torch and the simulator)")
     overwrite: bool = setting(example=True)
     num_threads: int = setting(gt=0, example=1)
     num_envs: int = setting(gt=0, example=32)
