@@ -292,6 +292,12 @@ def cases(work: Path, good_run: Path) -> list[Case]:
         Case("drs-compare naming one run twice", ["drs-compare", "{good}", "{good}/", "--out", "{d}/cmp"]),
         Case("drs-study with two runs of the same settings", ["drs-study", str(work / "twin_study.yaml")]),
         Case("drs-study --jobs 0", ["drs-study", str(work / "typo_study.yaml"), "--jobs", "0"]),
+        Case("a negative seed", [*L, "seed=-1"]),
+        Case(
+            "config-defined family with its stage keys as one string",
+            [*L, "env=custom", "env.family=mine", "env.env_id=PushCube-v1", "env.stage_keys=success"],
+        ),
+        Case("drs-quickstart with a setting that is not a list", ["drs-quickstart", "learn=5", "out={d}/q"]),
     ]
 
 
