@@ -1,6 +1,7 @@
 """drs-learn and drs-reuse through their console scripts, on real ManiSkill at tiny budgets."""
 
 import csv
+import shutil
 import json
 import os
 import subprocess
@@ -97,10 +98,14 @@ def test_reuse_loads_the_learned_reward_on_the_test_variant_and_trains(learned, 
 
 
 def test_compare_and_plot_read_real_runs(learned, tmp_path):
+    twin = tmp_path / "twin"  # a second run directory with the same records (one run named twice is refused)
+    twin.mkdir()
+    for name in ("config.yaml", "train.csv", "eval.csv"):
+        shutil.copy(learned / name, twin / name)
     p = run(
         "drs-compare",
         str(learned),
-        str(learned),
+        str(twin),
         "--group-by",
         "phase",
         "env.split",
