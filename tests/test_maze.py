@@ -746,6 +746,24 @@ def test_a_refused_drs_maze_keeps_the_runs_hydra_record_and_a_replacing_one_take
     assert p.returncode == 0, p.stderr[-2000:]
     assert (run / ".hydra" / "config.yaml").read_text().startswith("phase: reuse")  # the new run's record, in place
     assert not list(run.glob(".hydra-*")) and "old" not in (run / "summary.json").read_text()
+    busy = tmp_path / "busy"  # a directory another process writes: no record of this refused run is left in it
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            f"import time; from drs_torchrl.rundir import lock_run_dir; lock_run_dir({str(busy)!r}); "
+            "print('locked', flush=True); time.sleep(120)",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        p = maze("phase=reuse", "reward.name=sparse", f"hydra.run.dir={busy}", *TINY)
+        assert p.returncode == 2 and "is being written by another process" in p.stderr
+        assert [f.name for f in busy.iterdir()] == [".drs-lock"]  # the holder's lock only
+    finally:
+        holder.kill()
 
 
 def test_ppo_learns_the_maze_reward_beside_it_and_reuses_it(tmp_path):

@@ -89,7 +89,7 @@ from drs_torchrl.console import console_script
 from drs_torchrl.run_logger import RunLogger
 from drs_torchrl.loop import EpisodeWindow, Progress, Schedule, run_algorithm1
 from drs_torchrl.rewards import available_rewards, reused_method, reward_entry
-from drs_torchrl.rundir import OldRun, clear_for_new_run, lock_run_dir, unlock_run_dir
+from drs_torchrl.rundir import OldRun, RunDirBusyError, clear_for_new_run, lock_run_dir, unlock_run_dir
 from drs_torchrl.transforms import ClassifierReward, DrSReward, SemiSparseReward, StageIndicator, load_reward
 
 REWARD_INPUTS = ("state_action", "next_state")  # R(s, a) as the appendix's tabular analysis, or R(s') as Sec. 4.3
@@ -772,7 +772,7 @@ def main(cfg: DictConfig) -> None:
         run_dir = HydraConfig.get().runtime.output_dir
         lock_run_dir(run_dir, "choose another hydra.run.dir")  # the one writer of the run directory
         s = train(cfg, run_dir)
-    except (MazeConfigError, ValueError, FileNotFoundError) as exc:
+    except (MazeConfigError, ValueError, FileNotFoundError, RunDirBusyError) as exc:
         print(f"drs-maze: error: {exc}", file=sys.stderr)
         if cfg.phase != "report":  # the refused run leaves the directory as it was (no Hydra record over a run's)
             discard_refused_record(current_record(run_dir))

@@ -74,13 +74,11 @@ def plan(cfg: DictConfig, out: Path) -> list[Job]:
         raise QuickstartError(f"total_frames and jobs must be positive, got {frames} and {jobs}")
     if seed < 0:
         raise QuickstartError(f"seed must be >= 0 (it seeds numpy and the maze), got {seed}")
-    for key, what in (
-        ("learn", "drs-maze overrides"),
-        ("common", "drs-maze overrides"),
-        ("extra", "drs-maze overrides"),
-    ):
+    for key in ("learn", "common", "extra"):
         if not OmegaConf.is_list(cfg[key]):
-            raise QuickstartError(f"{key} must be a list of {what}, e.g. {key}=[dqn.lr=0.001], got {cfg[key]!r}")
+            raise QuickstartError(
+                f"{key} must be a list of drs-maze overrides, e.g. {key}=[dqn.lr=0.001], got {cfg[key]!r}"
+            )
     if not OmegaConf.is_list(cfg.baselines):
         raise QuickstartError(f"baselines must be a list, e.g. baselines=[sparse,semi_sparse], got {cfg.baselines!r}")
     if not OmegaConf.is_dict(cfg.reuse) or not all(OmegaConf.is_list(v) for v in cfg.reuse.values()):
