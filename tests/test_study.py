@@ -477,6 +477,7 @@ def test_a_run_with_a_bad_override_or_missing_file_stops_the_study_before_anythi
             {"name": "no_demos", "args": [f"demos.path={tmp_path / 'missing.demos'}"]},
             {"name": "bad_value", "args": ["stop_at_success=2"]},
             {"name": "no_ablation", "args": ["+ablation=nope"]},
+            {"name": "added_key", "args": ["+algo.lr=1e-3"]},  # Hydra adds it; nothing would read it
         ],
     }
     f = write(tmp_path, spec)
@@ -486,11 +487,13 @@ def test_a_run_with_a_bad_override_or_missing_file_stops_the_study_before_anythi
     assert lines["ok"].split()[0] == "ok" and lines["reuse"].split()[0] == "ok"
     assert "algo.gama" in lines["typo"] and "missing.demos: no such file" in lines["no_demos"]
     assert "stop_at_success must be" in lines["bad_value"] and "ablation/nope" in lines["no_ablation"]
+    assert "no setting 'algo.lr'" in lines["added_key"] and "algo.optim.lr" in lines["added_key"]
     # running the study refuses as a whole, names every bad run, and creates nothing
     assert main([str(f)]) == 2
     err = capsys.readouterr().err
     assert (
-        all(f"run {n}:" in err for n in ("typo", "no_demos", "bad_value", "no_ablation")) and "nothing started" in err
+        all(f"run {n}:" in err for n in ("typo", "no_demos", "bad_value", "no_ablation", "added_key"))
+        and "nothing started" in err
     )
     assert not (tmp_path / "runs").exists()
     # the good runs alone pass the check

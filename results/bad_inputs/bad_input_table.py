@@ -298,6 +298,13 @@ def cases(work: Path, good_run: Path) -> list[Case]:
             [*L, "env=custom", "env.family=mine", "env.env_id=PushCube-v1", "env.stage_keys=success"],
         ),
         Case("drs-quickstart with a setting that is not a list", ["drs-quickstart", "learn=5", "out={d}/q"]),
+        Case("a '+' override adding a setting nothing reads", [*L, "+algo.lr=1e-3"]),
+        Case(
+            "drs-maze with a '+' override adding a setting nothing reads",
+            ["drs-maze", "+dqn.lr2=1e-3", "hydra.run.dir={d}/m"],
+        ),
+        Case("a constructor argument the built object does not take", [*L, "+algo.loss.alpha_int=0.5"]),
+        Case("a _target_ that does not import", [*L, "algo.collector._target_=torchrl.collectors.AsyncColector"]),
     ]
 
 

@@ -194,6 +194,7 @@ def _run(cfg: DictConfig, phase: str) -> None:
         # the one writer of the run directory (Hydra's record is already beside another writer's: the resolver locked)
         locked.append(lock_run_dir(run_dir, "choose another hydra.run.dir"))
         from drs_torchrl.tasks import family_from_config
+        from drs_torchrl.apps.overrides import check_added_settings
         from drs_torchrl.apps.validation import validate_config
 
         overrides = list(HydraConfig.get().overrides.task)
@@ -201,7 +202,8 @@ def _run(cfg: DictConfig, phase: str) -> None:
             cfg = resume_config(Path(run_dir), phase, overrides, composed=cfg)
         validate_config(cfg, phase)  # a refused setting (overwrite=no too) touches no run
         family_from_config(cfg.env)
-        if not resume:
+        if not resume:  # (a resume's overrides are checked against the run's config by resume_config)
+            check_added_settings(cfg, overrides, phase, phase)
             check_reused_reward_overrides(cfg, phase, overrides)
             old = check_fresh_run_dir(Path(run_dir), phase, bool(cfg.get("overwrite", False)))
         runner = Run(cfg, phase, run_dir, resume=resume)

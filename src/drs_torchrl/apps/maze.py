@@ -83,6 +83,7 @@ from drs_torchrl.apps.maze_analysis import (  # noqa: F401 (re-exported: the maz
     reward_label,
 )
 from drs_torchrl.apps.hydra_record import current_record, discard_refused_record, replaced  # (registers the resolver)
+from drs_torchrl.apps.overrides import check_added_settings, check_constructor_arguments
 from drs_torchrl.apps.schema import MazeSchema, check
 from drs_torchrl.config_dir import conf_dir
 from drs_torchrl.console import console_script
@@ -268,6 +269,7 @@ def _is_classifier(entry) -> bool:
 def validate(cfg: DictConfig) -> None:
     """The schema's types and ranges (``apps/schema.py``), then the rules between fields and the registry's names."""
     check(cfg, MazeSchema, MazeConfigError)
+    check_constructor_arguments(cfg, MazeConfigError)
     entry, name = _entry(cfg), cfg.reward.name
     learned = entry is not None and entry.get("learner") is not None
     learnable = [n for n in available_rewards() if (e := reward_entry(OmegaConf.create({"name": n}))).get("learner")
@@ -764,12 +766,13 @@ def _finish(cfg, run_dir: Path, loop_summary: dict, record: _MazeRecord, map_nam
 @hydra.main(config_path=conf_dir(), config_name="maze", version_base=None)
 def main(cfg: DictConfig) -> None:
     """``drs-maze phase=learn|reuse|report ...`` (see conf/maze.yaml)."""
+    run_dir = HydraConfig.get().runtime.output_dir
     try:
+        check_added_settings(cfg, list(HydraConfig.get().overrides.task), "maze", "maze", MazeConfigError)
         if cfg.phase == "report":
             res = report(cfg.report.root, cfg.report.out)
             print(f"drs-maze: report of {res['runs']} runs in {res['out']}")
             return
-        run_dir = HydraConfig.get().runtime.output_dir
         lock_run_dir(run_dir, "choose another hydra.run.dir")  # the one writer of the run directory
         s = train(cfg, run_dir)
     except (MazeConfigError, ValueError, FileNotFoundError, RunDirBusyError) as exc:

@@ -35,6 +35,7 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
+from drs_torchrl.apps.overrides import check_added_settings
 from drs_torchrl.console import UserError, console_script
 from drs_torchrl.rundir import LOCK_NAME, RunDirBusyError, lock_run_dir, unlock_run_dir
 from drs_torchrl.config_dir import conf_dir as _conf_dir
@@ -466,6 +467,7 @@ def main(cfg: DictConfig) -> None:
     if out.is_relative_to(Path.cwd()):  # shown and recorded as the user wrote it (runs/quickstart/seed0)
         out = out.relative_to(Path.cwd())
     try:
+        check_added_settings(cfg, list(HydraConfig.get().overrides.task), "quickstart", "quickstart", QuickstartError)
         jobs = plan(cfg, out)
         lock_run_dir(out, "choose another out=DIR")  # one quickstart per folder (each run locks its own too)
         kept = prepare_out(out, jobs, bool(cfg.overwrite))

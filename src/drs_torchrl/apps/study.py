@@ -320,6 +320,7 @@ def check_run(run: Run, root: Path, record: Path | None) -> str | None:
     from drs_torchrl.tasks import family_from_config
     from drs_torchrl.apps import cli as apps  # noqa: F401  (registers the resolvers the configs use)
     from drs_torchrl.errors import ConfigError
+    from drs_torchrl.apps.overrides import check_added_settings
     from drs_torchrl.apps.validation import validate_config
 
     args = resolve_args(run, root, record)
@@ -335,6 +336,7 @@ def check_run(run: Run, root: Path, record: Path | None) -> str | None:
     try:
         with initialize_config_dir(config_dir=apps.conf_dir(), version_base=None):
             cfg = compose(config_name=run.app, overrides=args)
+            check_added_settings(cfg, args, run.app, run.app)
         validate_config(cfg, run.app)
         family = family_from_config(cfg.env)
         split = str(cfg.env.get("split") or "train")

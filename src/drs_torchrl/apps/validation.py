@@ -9,6 +9,7 @@ from hydra.utils import get_class
 from omegaconf import DictConfig, open_dict
 from torchrl.collectors import MultiCollector
 
+from drs_torchrl.apps.overrides import check_constructor_arguments
 from drs_torchrl.apps.schema import RunSchema, check
 from drs_torchrl.data.demo_mix import requested_sac_share
 from drs_torchrl.errors import ConfigError
@@ -42,6 +43,7 @@ def collector_for_device(cfg: DictConfig, device: torch.device) -> str | None:
 def validate_config(cfg: DictConfig, phase: str) -> None:
     """Reject values that would fail later or silently do nothing."""
     check(cfg, RunSchema)
+    check_constructor_arguments(cfg)
     a = cfg.algo
     checks = [
         (
