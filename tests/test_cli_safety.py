@@ -315,3 +315,22 @@ def test_a_keyerror_while_training_is_a_bug_not_a_setting(tmp_path):
     assert _user_message(KeyError("unknown reward 'x'"), cfg, "learn", tmp_path) == "unknown reward 'x'"
     assert _user_message(ValueError("bad shape"), cfg, "learn", tmp_path, training=True) is None
     assert _user_message(KeyError(("next", "stage")), cfg, "learn", tmp_path, training=True) is None
+
+
+@pytest.mark.parametrize(
+    "script,args",
+    [
+        ("drs-learn", ["hydra.run.dir="]),
+        ("drs-reuse", ["reward=sparse", "hydra.run.dir= "]),
+        ("drs-maze", ["hydra.run.dir="]),
+        ("drs-quickstart", ["out="]),
+    ],
+)
+def test_an_empty_run_directory_is_refused_and_nothing_lands_in_the_working_directory(tmp_path, script, args):
+    """``hydra.run.dir=$RUN`` with RUN unset: Hydra made the working directory the run's (a run's files, or a
+    quickstart's four runs, among the user's own)."""
+    (tmp_path / "mine.txt").write_text("the user's file\n")
+    p = subprocess.run([str(BIN / script), *args], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 2, p.stderr[-2000:]
+    assert p.stderr.strip().splitlines()[-1].startswith(f"{script}: error: ") and "is empty" in p.stderr
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["mine.txt"]

@@ -77,6 +77,9 @@ def test_every_shipped_config_passes_its_schema(config, overrides):
         ("algo.hidden=64", "algo.hidden must be a list of integers, got 64 (int)"),
         ("algo.hidden=[0,16]", "algo.hidden must be layer widths, each > 0, got [0, 16]"),
         ("reward.hidden=[-1]", "reward.hidden must be layer widths, each > 0, got [-1]; e.g. reward.hidden=[32]"),
+        # settings of demonstrations with none given: they had done nothing, silently
+        ("demos.num=5", "demos.num=5 is a setting of the demonstrations in demos.path, which is not set"),
+        ("demos.stage_buffers=true", "demos.stage_buffers=true is a setting of the demonstrations in demos.path"),
     ],
 )
 def test_a_bad_value_is_named_with_its_type_or_range_and_an_example(override, message):

@@ -305,6 +305,9 @@ def cases(work: Path, good_run: Path) -> list[Case]:
         ),
         Case("a constructor argument the built object does not take", [*L, "+algo.loss.alpha_int=0.5"]),
         Case("a _target_ that does not import", [*L, "algo.collector._target_=torchrl.collectors.AsyncColector"]),
+        Case("an empty run directory (hydra.run.dir=$RUN, RUN unset)", [*L, "hydra.run.dir="]),
+        Case("drs-quickstart with an empty out=", ["drs-quickstart", "out="]),
+        Case("a number of demonstrations without demonstrations", [*L, "demos.num=5"]),
     ]
 
 

@@ -23,9 +23,11 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from drs_torchrl.apps.hydra_record import (  # noqa: F401 (registers the configs' resolvers)
+    EMPTY_RUN_DIR,
     RUN_MARKERS,
     current_record,
     discard_refused_record,
+    empty_run_dir,
     holds_run,
     replaced,
 )
@@ -191,6 +193,8 @@ def _run(cfg: DictConfig, phase: str) -> None:
         resume = bool(cfg.get("resume"))
         if resume:
             run_dir = str(Path(cfg.resume))
+        elif empty_run_dir():
+            raise ConfigError(EMPTY_RUN_DIR)
         # the one writer of the run directory (Hydra's record is already beside another writer's: the resolver locked)
         locked.append(lock_run_dir(run_dir, "choose another hydra.run.dir"))
         from drs_torchrl.tasks import family_from_config

@@ -54,6 +54,8 @@ def _hydra_subdir_resolver(resume, run_dir=None):
 
     Hydra asks for this just before it writes the record, so the run directory's lock is taken here; a
     directory another process holds gets the record beside, and the app then refuses and removes it."""
+    if not resume and run_dir is not None and not str(run_dir).strip():
+        return None  # hydra.run.dir= (an unset shell variable): no record in the working directory; the app refuses
     job = _job_dir()
     if job is not None and job in _REFUSED:
         return _REFUSED[job]  # asked again by the app: the same answer, even if the other writer is gone by now
@@ -72,6 +74,17 @@ def _hydra_subdir_resolver(resume, run_dir=None):
 
 OmegaConf.register_new_resolver("drs_run_dir", _run_dir_resolver, replace=True)
 OmegaConf.register_new_resolver("drs_hydra_subdir", _hydra_subdir_resolver, replace=True)
+
+
+def empty_run_dir() -> bool:
+    """``hydra.run.dir=`` was given empty (e.g. ``hydra.run.dir=$RUN`` with ``RUN`` unset): Hydra would make the working
+    directory the run directory."""
+    return not str(HydraConfig.get().run.dir).strip()
+
+
+EMPTY_RUN_DIR = (
+    "hydra.run.dir is empty (an unset shell variable?); name the run's directory, e.g. hydra.run.dir=runs/my_run"
+)
 
 
 def current_record(run_dir: str | os.PathLike) -> Path | None:

@@ -82,7 +82,13 @@ from drs_torchrl.apps.maze_analysis import (  # noqa: F401 (re-exported: the maz
     reward_diagnostics,
     reward_label,
 )
-from drs_torchrl.apps.hydra_record import current_record, discard_refused_record, replaced  # (registers the resolver)
+from drs_torchrl.apps.hydra_record import (  # (registers the resolver)
+    EMPTY_RUN_DIR,
+    current_record,
+    discard_refused_record,
+    empty_run_dir,
+    replaced,
+)
 from drs_torchrl.apps.overrides import check_added_settings, check_constructor_arguments
 from drs_torchrl.apps.schema import MazeSchema, check
 from drs_torchrl.config_dir import conf_dir
@@ -769,6 +775,8 @@ def main(cfg: DictConfig) -> None:
     run_dir = HydraConfig.get().runtime.output_dir
     try:
         check_added_settings(cfg, list(HydraConfig.get().overrides.task), "maze", "maze", MazeConfigError)
+        if cfg.phase != "report" and empty_run_dir():
+            raise MazeConfigError(EMPTY_RUN_DIR)
         if cfg.phase == "report":
             res = report(cfg.report.root, cfg.report.out)
             print(f"drs-maze: report of {res['runs']} runs in {res['out']}")

@@ -78,6 +78,14 @@ def validate_config(cfg: DictConfig, phase: str) -> None:
             "demos.stage_buffers=false is for drs-learn reward=drs (the demonstrations in the SAC batch "
             f"only); this run is drs-{phase} reward={cfg.reward.name}"
         )
+    demos = cfg.get("demos") or {}
+    for key, unset in (("num", None), ("stage_buffers", "auto")):  # settings of demonstrations, with none to set
+        if not demos.get("path") and demos.get(key, unset) != unset:
+            given = str(demos.get(key)).lower() if isinstance(demos.get(key), bool) else demos.get(key)
+            raise ConfigError(
+                f"demos.{key}={given} is a setting of the demonstrations in demos.path, which is not set: "
+                f"name them with demos.path=DIR (made by drs-demos), or drop demos.{key}"
+            )
     if cfg.logger.get("wandb", False):
         import importlib.util
 
