@@ -253,6 +253,8 @@ def test_config_errors_name_the_fix():
         with pytest.raises(MazeConfigError, match="use reward.coords=relative, patch or null"):
             validate(compose("maze", overrides=["coords=relative", "reward.coords=onehot"]))
         validate(compose("maze", overrides=["coords=onehot", "reward.coords=relative"]))  # re-encodable: fine
+        with pytest.raises(MazeConfigError, match="reward.name=sparse is a static reward and reads no checkpoint"):
+            validate(compose("maze", overrides=["phase=reuse", "reward.name=sparse", "reward.checkpoint=r.pt"]))
 
 
 TINY = [

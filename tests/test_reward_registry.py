@@ -46,6 +46,16 @@ def test_an_unknown_reward_names_the_registry():
         reward_entry(OmegaConf.create({"name": "nonsense"}))
 
 
+@pytest.mark.parametrize("name", ["sparse", "semi_sparse", "dense"])
+def test_a_static_reward_refuses_a_checkpoint_it_would_ignore(name):
+    """drs-reuse reward=dense reward.checkpoint=...: the user meant to reuse a learned reward and would get dense."""
+    cfg = reward_entry(OmegaConf.create({"name": name}))
+    reward_setup(cfg, "reuse")  # without one: fine
+    cfg.checkpoint = "runs/learn/x/checkpoints/reward.pt"
+    with pytest.raises(ValueError, match=f"reward={name} is a static reward and reads no checkpoint"):
+        reward_setup(cfg, "reuse")
+
+
 def documented_reward_file() -> str:
     """The example file of docs/rewards.md ("Adding a reward"), as a user would copy it."""
     text = (ROOT / "docs" / "rewards.md").read_text()

@@ -308,6 +308,10 @@ def cases(work: Path, good_run: Path) -> list[Case]:
         Case("an empty run directory (hydra.run.dir=$RUN, RUN unset)", [*L, "hydra.run.dir="]),
         Case("drs-quickstart with an empty out=", ["drs-quickstart", "out="]),
         Case("a number of demonstrations without demonstrations", [*L, "demos.num=5"]),
+        Case(
+            "a reward checkpoint given to a static reward (drs-reuse reward=dense)",
+            ["drs-reuse", *TINY, "reward=dense", "reward.checkpoint={good}/checkpoints/reward.pt"],
+        ),
     ]
 
 

@@ -79,14 +79,26 @@ def reward_setup(cfg, phase: str) -> RewardSetup:
 def env_reward(cfg, phase: str, mode: str = "sparse") -> RewardSetup:
     """``sparse`` / ``dense``: the env's own reward in ManiSkill's reward ``mode``, shifted by ``cfg.offset``
     (dense; None: the family's default, :func:`dense_offset`)."""
+    _reads_no_checkpoint(cfg)
     off = cfg.get("offset")
     return RewardSetup(cfg.name, env_reward_mode=mode, env_reward_offset=None if off is None else float(off))
 
 
 def semi_sparse_reward(cfg, phase: str) -> RewardSetup:
     """``semi_sparse`` (Eq. 2): the stage index written by the stage transform, shifted by ``cfg.offset`` (None: -N)."""
+    _reads_no_checkpoint(cfg)
     off = cfg.get("offset")
     return RewardSetup(cfg.name, semi_sparse=True, semi_sparse_offset=None if off is None else float(off))
+
+
+def _reads_no_checkpoint(cfg) -> None:
+    """A static reward given a ``reward.checkpoint``: the run would ignore the checkpoint (a user who meant to reuse it
+    would get the baseline)."""
+    if cfg.get("checkpoint"):
+        raise ValueError(
+            f"reward={cfg.name} is a static reward and reads no checkpoint, so reward.checkpoint={cfg.checkpoint} "
+            "would be ignored: drop it, or reuse the learned reward with the reward that learned it (e.g. reward=drs)"
+        )
 
 
 def learned_reward(cfg, phase: str) -> RewardSetup:

@@ -290,6 +290,11 @@ def validate(cfg: DictConfig) -> None:
         ),
         (cfg.phase != "learn" or not cfg.reward.checkpoint, "reward.checkpoint is for phase=reuse"),
         (
+            entry is None or learned or not cfg.reward.checkpoint,
+            f"reward.name={name} is a static reward and reads no checkpoint, so reward.checkpoint="
+            f"{cfg.reward.checkpoint} would be ignored: drop it, or reuse the learned reward (e.g. reward.name=drs)",
+        ),
+        (
             cfg.phase != "reuse" or not learned or bool(cfg.reward.checkpoint),
             f"phase=reuse with reward.name={name} needs reward.checkpoint=PATH (a reward.pt written by phase=learn"
             f" reward.name={entry.get('reuses') or name if entry is not None else name})",

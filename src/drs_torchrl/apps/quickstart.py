@@ -469,7 +469,9 @@ def main(cfg: DictConfig) -> None:
     try:
         check_added_settings(cfg, list(HydraConfig.get().overrides.task), "quickstart", "quickstart", QuickstartError)
         if not str(cfg.out).strip():
-            raise QuickstartError("out is empty (an unset shell variable?); name a folder, e.g. out=runs/quickstart/mine")
+            raise QuickstartError(
+                "out is empty (an unset shell variable?); name a folder, e.g. out=runs/quickstart/mine"
+            )
         jobs = plan(cfg, out)
         lock_run_dir(out, "choose another out=DIR")  # one quickstart per folder (each run locks its own too)
         kept = prepare_out(out, jobs, bool(cfg.overwrite))
