@@ -478,6 +478,12 @@ def test_a_run_with_a_bad_override_or_missing_file_stops_the_study_before_anythi
             {"name": "bad_value", "args": ["stop_at_success=2"]},
             {"name": "no_ablation", "args": ["+ablation=nope"]},
             {"name": "added_key", "args": ["+algo.lr=1e-3"]},  # Hydra adds it; nothing would read it
+            {
+                "name": "static_ckpt",
+                "app": "reuse",
+                "args": ["reward=dense", "reward.checkpoint=<reward:ok>"],
+                "needs": ["ok"],
+            },
         ],
     }
     f = write(tmp_path, spec)
@@ -488,11 +494,12 @@ def test_a_run_with_a_bad_override_or_missing_file_stops_the_study_before_anythi
     assert "algo.gama" in lines["typo"] and "missing.demos: no such file" in lines["no_demos"]
     assert "stop_at_success must be" in lines["bad_value"] and "ablation/nope" in lines["no_ablation"]
     assert "no setting 'algo.lr'" in lines["added_key"] and "algo.optim.lr" in lines["added_key"]
+    assert "reward=dense is a static reward and reads no checkpoint" in lines["static_ckpt"]
     # running the study refuses as a whole, names every bad run, and creates nothing
     assert main([str(f)]) == 2
     err = capsys.readouterr().err
     assert (
-        all(f"run {n}:" in err for n in ("typo", "no_demos", "bad_value", "no_ablation", "added_key"))
+        all(f"run {n}:" in err for n in ("typo", "no_demos", "bad_value", "no_ablation", "added_key", "static_ckpt"))
         and "nothing started" in err
     )
     assert not (tmp_path / "runs").exists()

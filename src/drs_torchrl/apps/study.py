@@ -321,6 +321,7 @@ def check_run(run: Run, root: Path, record: Path | None) -> str | None:
     from drs_torchrl.apps import cli as apps  # noqa: F401  (registers the resolvers the configs use)
     from drs_torchrl.errors import ConfigError
     from drs_torchrl.apps.overrides import check_added_settings
+    from drs_torchrl.rewards import is_learned, reward_setup
     from drs_torchrl.apps.validation import validate_config
 
     args = resolve_args(run, root, record)
@@ -338,6 +339,8 @@ def check_run(run: Run, root: Path, record: Path | None) -> str | None:
             cfg = compose(config_name=run.app, overrides=args)
             check_added_settings(cfg, args, run.app, run.app)
         validate_config(cfg, run.app)
+        if not is_learned(cfg.reward):  # a static reward's slot reads no file: build it (a checkpoint it would ignore)
+            reward_setup(cfg.reward, run.app)
         family = family_from_config(cfg.env)
         split = str(cfg.env.get("split") or "train")
         family.env_args(split, OmegaConf.to_container(cfg.env.get("variant_overrides") or OmegaConf.create({})))
