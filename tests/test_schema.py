@@ -97,6 +97,16 @@ def test_a_resumed_config_is_checked_like_a_composed_one(tmp_path):
         validate_config(OmegaConf.load(path), "learn")
 
 
+def test_a_resumed_run_keeps_the_stage_buffers_choice_auto_saved():
+    """A run saves what demos.stage_buffers=auto chose (true, with or without demonstrations): its resume passes."""
+    cfg = composed("learn")
+    cfg.demos.stage_buffers = True
+    with pytest.raises(ConfigError, match="demos.stage_buffers=true is a setting of the demonstrations"):
+        validate_config(cfg, "learn")
+    cfg.resume = "runs/learn/x"
+    validate_config(cfg, "learn")
+
+
 def test_an_on_policy_algorithm_takes_no_random_warm_up():
     """PPO's loss reads the log-probabilities of the policy that collected; random warm-up actions have none."""
     with pytest.raises(ConfigError, match=r"algo.learning_starts must be 0 for algo=ppo .*got 1000"):

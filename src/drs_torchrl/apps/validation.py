@@ -79,7 +79,10 @@ def validate_config(cfg: DictConfig, phase: str) -> None:
             f"only); this run is drs-{phase} reward={cfg.reward.name}"
         )
     demos = cfg.get("demos") or {}
-    for key, unset in (("num", None), ("stage_buffers", "auto")):  # settings of demonstrations, with none to set
+    # settings of demonstrations, with none to set (a run's saved config holds the stage_buffers that auto chose)
+    for key, unset in (("num", None), ("stage_buffers", "auto")):
+        if key == "stage_buffers" and cfg.get("resume"):
+            continue
         if not demos.get("path") and demos.get(key, unset) != unset:
             given = str(demos.get(key)).lower() if isinstance(demos.get(key), bool) else demos.get(key)
             raise ConfigError(
