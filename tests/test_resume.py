@@ -63,6 +63,7 @@ def test_sigkill_then_resume_continues_from_the_saved_step(tmp_path):
 
     # the restored trainer holds exactly what was saved
     cfg = OmegaConf.load(run_dir / "config.yaml")
+    assert cfg.demos.stage_buffers == "auto"  # no demonstrations to file: a fresh run from this config passes too
     tr = Run(cfg, "learn", run_dir, resume=True)
     try:
         assert tr.frames == saved_frames and tr.updater.updates == payload["counters"]["updates"]

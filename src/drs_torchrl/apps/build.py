@@ -102,7 +102,7 @@ class Run:
             raise
 
     def _build(self, cfg: DictConfig, phase: str, run_dir: str | Path, resume: bool) -> None:
-        validate_config(cfg, phase)
+        validate_config(cfg, phase, resume)
         self.cfg, self.phase, self.run_dir = cfg, phase, Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
         if resume:
@@ -269,6 +269,8 @@ class Run:
         want = (cfg.get("demos") or {}).get("stage_buffers", True)
         if want != "auto":
             return bool(want)
+        if not demos:  # nothing to file: auto stays auto (a fresh run from this config is refused nothing)
+            return True
         action_dim = int(self.env.action_spec.shape[-1])
         sac_only = bool(demos) and self.reward.name == "drs" and asked != 0 and carries_actions(demos, action_dim)
         if demos:

@@ -204,7 +204,7 @@ def _run(cfg: DictConfig, phase: str) -> None:
         overrides = list(HydraConfig.get().overrides.task)
         if resume:
             cfg = resume_config(Path(run_dir), phase, overrides, composed=cfg)
-        validate_config(cfg, phase)  # a refused setting (overwrite=no too) touches no run
+        validate_config(cfg, phase, resume)  # a refused setting (overwrite=no too) touches no run
         family_from_config(cfg.env)
         if not resume:  # (a resume's overrides are checked against the run's config by resume_config)
             check_added_settings(cfg, overrides, phase, phase)

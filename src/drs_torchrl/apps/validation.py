@@ -40,8 +40,8 @@ def collector_for_device(cfg: DictConfig, device: torch.device) -> str | None:
     )
 
 
-def validate_config(cfg: DictConfig, phase: str) -> None:
-    """Reject values that would fail later or silently do nothing."""
+def validate_config(cfg: DictConfig, phase: str, resume: bool = False) -> None:
+    """Reject values that would fail later or silently do nothing (``resume``: ``cfg`` is a run's saved config)."""
     check(cfg, RunSchema)
     check_constructor_arguments(cfg)
     a = cfg.algo
@@ -81,7 +81,7 @@ def validate_config(cfg: DictConfig, phase: str) -> None:
     demos = cfg.get("demos") or {}
     # settings of demonstrations, with none to set (a run's saved config holds the stage_buffers that auto chose)
     for key, unset in (("num", None), ("stage_buffers", "auto")):
-        if key == "stage_buffers" and cfg.get("resume"):
+        if key == "stage_buffers" and (resume or cfg.get("resume")):
             continue
         if not demos.get("path") and demos.get(key, unset) != unset:
             given = str(demos.get(key)).lower() if isinstance(demos.get(key), bool) else demos.get(key)
