@@ -320,8 +320,7 @@ def test_a_keyerror_while_training_is_a_bug_not_a_setting(tmp_path):
 @pytest.mark.parametrize(
     "script,args",
     [
-        ("drs-learn", ["hydra.run.dir="]),
-        ("drs-reuse", ["reward=sparse", "hydra.run.dir= "]),
+        ("drs-learn", ["hydra.run.dir= "]),  # (drs-reuse: the same code)
         ("drs-maze", ["hydra.run.dir="]),
         ("drs-quickstart", ["out="]),
     ],
