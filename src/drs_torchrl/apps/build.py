@@ -272,16 +272,15 @@ class Run:
         if not demos:  # nothing to file: auto stays auto (a fresh run from this config is refused nothing)
             return True
         action_dim = int(self.env.action_spec.shape[-1])
-        sac_only = bool(demos) and self.reward.name == "drs" and asked != 0 and carries_actions(demos, action_dim)
-        if demos:
-            tqdm.write(
-                f"drs-{self.phase}: demos.stage_buffers=auto -> {str(not sac_only).lower()}: "
-                + (
-                    "the demonstrations feed the SAC batch only; the discriminators' positives are the agent's own successes"
-                    if sac_only
-                    else "the demonstrations go into the top stage buffer (the paper's Algorithm 1, line 3)"
-                )
+        sac_only = self.reward.name == "drs" and asked != 0 and carries_actions(demos, action_dim)
+        tqdm.write(
+            f"drs-{self.phase}: demos.stage_buffers=auto -> {str(not sac_only).lower()}: "
+            + (
+                "the demonstrations feed the SAC batch only; the discriminators' positives are the agent's own successes"
+                if sac_only
+                else "the demonstrations go into the top stage buffer (the paper's Algorithm 1, line 3)"
             )
+        )
         with open_dict(cfg):
             cfg.demos.stage_buffers = not sac_only
         return not sac_only
