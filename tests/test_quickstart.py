@@ -97,6 +97,17 @@ def test_quickstart_plan_and_bad_settings(tmp_path):
     assert (other / "config.yaml").is_file()
 
 
+def test_a_refused_quickstart_removes_only_the_folder_it_made(cli, tmp_path):
+    """Refused before anything runs: the folder Hydra made for ``out`` goes, an (empty) folder the user made stays."""
+    made, mine = tmp_path / "made", tmp_path / "mine"
+    mine.mkdir()
+    for out in (made, mine):
+        code, err = cli("quickstart", f"out={out}", "+baseline=[dense]")
+        assert code == 2 and "did you mean baselines=" in err, err
+    assert not made.exists()
+    assert mine.is_dir() and not any(mine.iterdir())
+
+
 def test_an_unfinished_run_still_written_by_a_process_is_not_deleted(tmp_path):
     """A re-run deletes an unfinished run's folder to start it again, but not while a process still writes it (a run
     left behind by a quickstart killed outright): the run's own lock names it."""

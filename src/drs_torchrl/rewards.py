@@ -91,14 +91,19 @@ def semi_sparse_reward(cfg, phase: str) -> RewardSetup:
     return RewardSetup(cfg.name, semi_sparse=True, semi_sparse_offset=None if off is None else float(off))
 
 
+def static_checkpoint_error(name: str, checkpoint, key: str = "reward") -> str:
+    """The refusal for a static reward given a checkpoint: the run would ignore it (a user who meant to reuse a
+    learned reward would get the baseline). ``key`` is how the app names the reward (``reward`` or ``reward.name``)."""
+    return (
+        f"{key}={name} is a static reward and reads no checkpoint, so reward.checkpoint={checkpoint} would be "
+        f"ignored: drop it, or reuse the learned reward with the reward that learned it (e.g. {key}=drs)"
+    )
+
+
 def _reads_no_checkpoint(cfg) -> None:
-    """A static reward given a ``reward.checkpoint``: the run would ignore the checkpoint (a user who meant to reuse it
-    would get the baseline)."""
+    """Refuse a ``reward.checkpoint`` given to a static reward (:func:`static_checkpoint_error`)."""
     if cfg.get("checkpoint"):
-        raise ValueError(
-            f"reward={cfg.name} is a static reward and reads no checkpoint, so reward.checkpoint={cfg.checkpoint} "
-            "would be ignored: drop it, or reuse the learned reward with the reward that learned it (e.g. reward=drs)"
-        )
+        raise ValueError(static_checkpoint_error(cfg.name, cfg.checkpoint))
 
 
 def learned_reward(cfg, phase: str) -> RewardSetup:

@@ -95,7 +95,7 @@ from drs_torchrl.config_dir import conf_dir
 from drs_torchrl.console import console_script
 from drs_torchrl.run_logger import RunLogger
 from drs_torchrl.loop import EpisodeWindow, Progress, Schedule, run_algorithm1
-from drs_torchrl.rewards import available_rewards, reused_method, reward_entry
+from drs_torchrl.rewards import available_rewards, reused_method, reward_entry, static_checkpoint_error
 from drs_torchrl.rundir import OldRun, RunDirBusyError, clear_for_new_run, lock_run_dir, unlock_run_dir
 from drs_torchrl.transforms import ClassifierReward, DrSReward, SemiSparseReward, StageIndicator, load_reward
 
@@ -291,8 +291,7 @@ def validate(cfg: DictConfig) -> None:
         (cfg.phase != "learn" or not cfg.reward.checkpoint, "reward.checkpoint is for phase=reuse"),
         (
             entry is None or learned or not cfg.reward.checkpoint,
-            f"reward.name={name} is a static reward and reads no checkpoint, so reward.checkpoint="
-            f"{cfg.reward.checkpoint} would be ignored: drop it, or reuse the learned reward (e.g. reward.name=drs)",
+            static_checkpoint_error(name, cfg.reward.checkpoint, key="reward.name"),
         ),
         (
             cfg.phase != "reuse" or not learned or bool(cfg.reward.checkpoint),

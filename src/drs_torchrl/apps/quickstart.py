@@ -459,6 +459,19 @@ def plot(jobs: list[Job], out: Path) -> Path:
     return path
 
 
+_EXISTED: dict[str, bool] = {}  # out folder -> whether it existed before Hydra made it (first resolution wins)
+
+
+def _out_dir_resolver(out):
+    """``hydra.run.dir`` (``${drs_quickstart_out:${out}}``): notes whether the folder existed before Hydra makes it,
+    so that a refused quickstart removes only a folder Hydra made, never an empty one the user made beforehand."""
+    _EXISTED.setdefault(str(out), Path(str(out)).exists())
+    return out
+
+
+OmegaConf.register_new_resolver("drs_quickstart_out", _out_dir_resolver, replace=True)
+
+
 @console_script("drs-quickstart", quiet=False)  # its runs filter (or not: library_messages) themselves
 @hydra.main(config_path=_conf_dir(), config_name="quickstart", version_base=None)
 def main(cfg: DictConfig) -> None:
@@ -478,8 +491,9 @@ def main(cfg: DictConfig) -> None:
     except QuickstartError as exc:
         print(f"drs-quickstart: error: {exc}", file=sys.stderr)
         unlock_run_dir(out, remove_if_empty=True)  # (if this process took it)
-        with contextlib.suppress(OSError):
-            out.rmdir()  # the folder Hydra made for a refused quickstart, if it holds nothing
+        if _EXISTED.get(str(HydraConfig.get().run.dir)) is False:
+            with contextlib.suppress(OSError):
+                out.rmdir()  # the folder Hydra made for a refused quickstart, if it holds nothing
         sys.exit(2)
     todo = [j for j in jobs if j.name not in kept]
     print(f"drs-quickstart: DrS on the three-room maze, seed {cfg.seed}, into {out}", flush=True)
