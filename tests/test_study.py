@@ -491,7 +491,10 @@ def test_a_run_with_a_bad_override_or_missing_file_stops_the_study_before_anythi
     out = capsys.readouterr().out
     lines = {ln.split()[1].rstrip(":"): ln for ln in out.splitlines()}
     assert lines["ok"].split()[0] == "ok" and lines["reuse"].split()[0] == "ok"
-    assert "algo.gama" in lines["typo"] and "missing.demos: no such file" in lines["no_demos"]
+    assert (
+        "algo.gama" in lines["typo"]
+        and "missing.demos: no such file (record them first: drs-demos --family" in lines["no_demos"]
+    )
     assert "stop_at_success must be" in lines["bad_value"] and "ablation/nope" in lines["no_ablation"]
     assert "no setting 'algo.lr'" in lines["added_key"] and "algo.optim.lr" in lines["added_key"]
     assert "reward=dense is a static reward and reads no checkpoint" in lines["static_ckpt"]

@@ -333,7 +333,12 @@ def check_run(run: Run, root: Path, record: Path | None) -> str | None:
         if not any(
             Path(value).resolve().is_relative_to((root / n).resolve()) for n in run.needs
         ):  # else a need writes it
-            return f"{key}={value}: no such file"
+            hint = {
+                "demos.path": f"record them first: drs-demos --family FAMILY --out {value}",
+                "reward.checkpoint": "a reward.pt written by drs-learn",
+                "init_from": "the directory of a finished drs-learn run",
+            }
+            return f"{key}={value}: no such file ({hint[key]})"
     try:
         with initialize_config_dir(config_dir=apps.conf_dir(), version_base=None):
             cfg = compose(config_name=run.app, overrides=args)
