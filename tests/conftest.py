@@ -22,7 +22,7 @@ def pick_cube():
 
 @pytest.fixture
 def cli(monkeypatch, capsys):
-    """``cli("learn", *overrides) -> (exit code, stderr)``: the drs-learn / drs-reuse / drs-quickstart Hydra app in this
+    """``cli("learn", *overrides) -> (exit code, stderr)``: the drs-learn / drs-reuse / drs-maze / drs-quickstart Hydra app in this
     process, for commands that stop before simulating (bad input). The same app, config composition
     and error handling as the console scripts, without starting an interpreter (each costs ~10 s
     here); the runs that simulate keep their subprocess. Whatever the app changes process-wide
@@ -33,9 +33,11 @@ def cli(monkeypatch, capsys):
     from drs_torchrl.apps import cli as apps
 
     def call(app: str, *args: str) -> tuple[int, str]:
-        from drs_torchrl.apps import quickstart
+        from drs_torchrl.apps import maze, quickstart
 
-        main = {"learn": apps.learn_main, "reuse": apps.reuse_main, "quickstart": quickstart.main}[app]
+        main = {"learn": apps.learn_main, "reuse": apps.reuse_main, "maze": maze.main, "quickstart": quickstart.main}[
+            app
+        ]
         env, filters, streams = dict(os.environ), warnings.filters[:], (sys.stdout, sys.stderr)
         monkeypatch.setattr(sys, "argv", [f"drs-{app}", *args])
         code = 0

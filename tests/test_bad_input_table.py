@@ -81,6 +81,20 @@ def test_the_committed_table_is_current(table):
             "unknown reward",
             r"^drs-learn: error: In 'learn': Could not find 'reward/vice'; Available options in 'reward': dense, drs",
         ),
+        ("CUDA asked for, none present", r"^drs-learn: error: device=cuda was requested but CUDA is not available"),
+        (
+            "GPU simulation asked for, no CUDA",
+            r"^drs-learn: error: sim_backend='physx_cuda' was requested but CUDA is not available",
+        ),
+        (
+            "reward checkpoint with another observation layout",
+            r"^drs-reuse: error: the reward does not fit this environment: it reads 'observation' of size 48, the "
+            r"env's 'observation' has size 42",
+        ),
+        (
+            "no reward checkpoint for reward=drs",
+            r"^drs-reuse: error: drs-reuse with reward=drs needs reward\.checkpoint=PATH",
+        ),
         (
             "drs-demos --out naming a folder that is not demonstrations",
             r"^drs-demos: error: --out \S+ is a folder that does not",
@@ -88,7 +102,8 @@ def test_the_committed_table_is_current(table):
     ],
 )
 def test_issue_48_cases_are_one_line_with_the_fix(table, case, pattern):
-    """Two writers, a full disk, damaged files: one line naming the path or value and what to do."""
+    """Two writers, a full disk, damaged files, a device this machine lacks: one line naming the path or value and
+    what to do."""
     _, got = table
     code, message, one_line, untouched = got[case]
     if code == "-":

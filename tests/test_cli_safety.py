@@ -54,13 +54,14 @@ def test_console_shows_no_library_chatter_unless_asked(finished, tmp_path):
     assert "Requested to use render device" in p.stdout + p.stderr
 
 
-def test_a_new_run_is_refused_in_a_directory_that_holds_one(finished):
+def test_a_new_run_is_refused_in_a_directory_that_holds_one(finished, cli):
+    """(In this process; the console script's one line for the same refusal: results/bad_inputs/, its table test.)"""
     d, _ = finished
     before = {f: f.read_bytes() for f in (d / "train.csv", d / "config.yaml", d / ".hydra" / "overrides.yaml")}
-    p = run(*TINY, f"hydra.run.dir={d}", cwd=d)
-    assert p.returncode == 2
-    assert "already holds a run" in p.stderr and f"resume={d}" in p.stderr and "overwrite=true" in p.stderr
-    assert "Traceback" not in p.stderr
+    code, err = cli("learn", *TINY, f"hydra.run.dir={d}")
+    assert code == 2
+    assert "already holds a run" in err and f"resume={d}" in err and "overwrite=true" in err
+    assert "Traceback" not in err
     assert {f: f.read_bytes() for f in before} == before  # nothing of the old run was touched
     assert not list(d.glob(".hydra-new-*"))
 
@@ -85,11 +86,12 @@ def test_overwrite_true_replaces_the_run(finished, tmp_path):
         ("eval.episode_seed=first", "eval.episode_seed must be an integer or null, got 'first'"),
     ],
 )
-def test_a_value_of_the_wrong_type_is_one_line_and_the_fix(tmp_path, override, message):
-    p = run(override, f"hydra.run.dir={tmp_path / 'r'}", cwd=tmp_path)
-    assert p.returncode == 2
-    assert message in p.stderr and "e.g." in p.stderr
-    assert "Traceback" not in p.stderr
+def test_a_value_of_the_wrong_type_is_one_line_and_the_fix(cli, tmp_path, override, message):
+    """(In this process: a refusal before anything is built; the console script's: results/bad_inputs/.)"""
+    code, err = cli("learn", override, f"hydra.run.dir={tmp_path / 'r'}")
+    assert code == 2
+    assert message in err and "e.g." in err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "r").exists()  # no folder left holding only Hydra's record
 
 
@@ -325,11 +327,14 @@ def test_a_keyerror_while_training_is_a_bug_not_a_setting(tmp_path):
         ("drs-quickstart", ["out="]),
     ],
 )
-def test_an_empty_run_directory_is_refused_and_nothing_lands_in_the_working_directory(tmp_path, script, args):
+def test_an_empty_run_directory_is_refused_and_nothing_lands_in_the_working_directory(
+    cli, monkeypatch, tmp_path, script, args
+):
     """``hydra.run.dir=$RUN`` with RUN unset: Hydra made the working directory the run's (a run's files, or a
-    quickstart's four runs, among the user's own)."""
+    quickstart's four runs, among the user's own). (In this process, in a working directory of the user's.)"""
     (tmp_path / "mine.txt").write_text("the user's file\n")
-    p = subprocess.run([str(BIN / script), *args], cwd=tmp_path, capture_output=True, text=True, timeout=600)
-    assert p.returncode == 2, p.stderr[-2000:]
-    assert p.stderr.strip().splitlines()[-1].startswith(f"{script}: error: ") and "is empty" in p.stderr
+    monkeypatch.chdir(tmp_path)
+    code, err = cli(script.removeprefix("drs-"), *args)
+    assert code == 2, err[-2000:]
+    assert err.strip().splitlines()[-1].startswith(f"{script}: error: ") and "is empty" in err
     assert sorted(f.name for f in tmp_path.iterdir()) == ["mine.txt"]
