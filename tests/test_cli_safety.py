@@ -42,16 +42,7 @@ def test_console_shows_no_library_chatter_unless_asked(finished, tmp_path):
     assert "learner precision" in out and "env steps" in out
     for msg in LIBRARY_CHATTER:
         assert msg not in out, msg
-    p = run(
-        *TINY,
-        "total_frames=320",
-        "logger.progress_bar=false",
-        "logger.library_messages=true",
-        f"hydra.run.dir={tmp_path / 'loud'}",
-        cwd=tmp_path,
-    )
-    assert p.returncode == 0, p.stderr[-2000:]
-    assert "Requested to use render device" in p.stdout + p.stderr
+    # logger.library_messages=true shows them: test_overwrite_true_replaces_the_run's run asks for them
 
 
 def test_a_new_run_is_refused_in_a_directory_that_holds_one(finished, cli):
@@ -70,8 +61,16 @@ def test_overwrite_true_replaces_the_run(finished, tmp_path):
     d, _ = finished
     target = tmp_path / "copy"
     subprocess.run(["cp", "-r", str(d), str(target)], check=True)
-    p = run(*TINY, "total_frames=320", "overwrite=true", f"hydra.run.dir={target}", cwd=tmp_path)
+    p = run(
+        *TINY,
+        "total_frames=320",
+        "overwrite=true",
+        "logger.library_messages=true",
+        f"hydra.run.dir={target}",
+        cwd=tmp_path,
+    )
     assert p.returncode == 0, p.stderr[-2000:]
+    assert "Requested to use render device" in p.stdout + p.stderr  # the libraries' notices, asked for
     rows = (target / "train.csv").read_text().splitlines()
     assert rows[-1].split(",")[0] == "320"  # only the new run's rows
     assert "total_frames=320" in (target / ".hydra" / "overrides.yaml").read_text()
@@ -105,8 +104,9 @@ def _wait_for_progress(run_dir: Path, proc, timeout=300):
     raise AssertionError("no progress")
 
 
-@pytest.mark.parametrize("sig,code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
-def test_interrupted_run_saves_and_exits_non_zero_even_with_its_pipe_closed(tmp_path, sig, code):
+def test_ctrl_c_with_its_pipe_closed_saves_and_exits_130(tmp_path):
+    """``drs-learn ... | tee log`` and Ctrl-C: tee is gone before the run writes again; the run still saves its state
+    and exits 130. (SIGTERM, exit 143, with the pipe open: test_resume.py.)"""
     d = tmp_path / "r"
     args = [*TINY, "total_frames=200000", "logger.interval=128", "logger.progress_bar=false", f"hydra.run.dir={d}"]
     proc = subprocess.Popen(
@@ -116,19 +116,14 @@ def test_interrupted_run_saves_and_exits_non_zero_even_with_its_pipe_closed(tmp_
         stderr=subprocess.PIPE,
         env=dict(os.environ),
     )
-    if sig == signal.SIGINT:  # "drs-learn ... | tee log" and Ctrl-C: tee is gone before the run writes again
-        proc.stdout.close()
-        proc.stderr.close()
+    proc.stdout.close()
+    proc.stderr.close()
     _wait_for_progress(d, proc)
-    proc.send_signal(sig)
-    rc = proc.wait(timeout=300)
-    assert rc == code
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(timeout=300) == 130
     state = d / "checkpoints" / "state" / "COMPLETE"
     assert state.is_file() and int(state.read_text()) >= 128
     assert (d / "checkpoints" / "reward.pt").is_file() and (d / "checkpoints" / "policy.pt").is_file()
-    if sig == signal.SIGTERM:
-        err = proc.stderr.read().decode()
-        assert f"resume={d}" in err
     # and it resumes from there
     p = run(f"resume={d}", "total_frames=" + str(int(state.read_text()) + 64), cwd=tmp_path)
     assert p.returncode == 0, p.stderr[-2000:]
@@ -145,17 +140,7 @@ def test_drs_demos_console_shows_no_library_chatter_unless_asked(tmp_path):
     assert "1 demonstrations" in out
     for msg in LIBRARY_CHATTER:
         assert msg not in out, msg
-    env = {**os.environ, "DRS_LIBRARY_MESSAGES": "1"}
-    p = subprocess.run(
-        [*cmd, "--out", str(tmp_path / "loud.demos")],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=600,
-        env=env,
-    )
-    assert p.returncode == 0, p.stderr[-3000:]
-    assert "Requested to use render device" in p.stdout + p.stderr
+    # DRS_LIBRARY_MESSAGES=1 shows them (the console scripts' shared switch): test_drs_bench_collector_workers_...
 
 
 # ---------------------------------------------------------------------------------------------- issue 48

@@ -109,6 +109,7 @@ def test_sigterm_saves_state_and_resume_finishes(tmp_path):
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["interrupted"] is True
     assert int((run_dir / "checkpoints" / "state" / "COMPLETE").read_text()) == summary["frames"]
+    assert (run_dir / "checkpoints" / "reward.pt").is_file() and (run_dir / "checkpoints" / "policy.pt").is_file()
     p = subprocess.run(
         [str(BIN / "drs-learn"), f"resume={run_dir}", f"total_frames={summary['frames'] + 256}"],
         env=env,
