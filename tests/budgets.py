@@ -18,8 +18,14 @@ def tiny(
     eval_episodes: int = 1,
     checkpoint_every: int = 100_000,
     progress_bar: bool | None = False,
+    background: bool = False,
 ) -> list[str]:
-    """Overrides of ``drs-learn`` / ``drs-reuse`` for a tiny run (``disc_batch=None`` for a reward without a learner)."""
+    """Overrides of ``drs-learn`` / ``drs-reuse`` for a tiny run (``disc_batch=None`` for a reward without a learner).
+
+    ``background=False``: TorchRL's in-process ``Collector`` (what the studies run) instead of the config's
+    background ``AsyncCollector``, whose worker process imports torch and builds its own env (several CPU-seconds a
+    run). The runs that test the default path keep it (``background=True``): the default run of test_cli, the
+    interrupts and resumes, the console's filtering in the worker, and test_collection."""
     settings = {
         "total_frames": frames,
         "algo.learning_starts": learning_starts,
@@ -32,6 +38,7 @@ def tiny(
         "checkpoint_interval": checkpoint_every,
         "logger.progress_bar": None if progress_bar is None else str(progress_bar).lower(),
         "logger.tensorboard": "false",
+        "algo.collector._target_": None if background else "torchrl.collectors.Collector",
     }
     return [f"{key}={value}" for key, value in settings.items() if value is not None]
 

@@ -32,6 +32,7 @@ class PoisonAfterFirstCheckpoint(Run):
         return out
 
 
+@pytest.mark.slow
 def test_nan_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path):
     tr = PoisonAfterFirstCheckpoint(cfg(), "learn", tmp_path)
     with pytest.raises(NonFiniteError, match=r"non-finite SAC loss at env step \d+"):
@@ -47,6 +48,7 @@ def test_nan_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path):
     tr2.close()
 
 
+@pytest.mark.slow
 def test_damaged_training_state_is_reported(tmp_path):
     Run(cfg("total_frames=256"), "learn", tmp_path).run()
     for f in (tmp_path / "checkpoints" / "state" / "replay").rglob("observation.memmap"):

@@ -17,7 +17,7 @@ from budgets import HALF_CHEETAH, tiny
 
 pytestmark = [pytest.mark.sim, pytest.mark.slow]
 BIN = Path(sys.executable).parent
-TINY = [*HALF_CHEETAH, *tiny(frames=384, hidden=32), "algo.collector._target_=torchrl.collectors.Collector"]
+TINY = [*HALF_CHEETAH, *tiny(frames=384, hidden=32)]
 
 
 def _run(cmd, *args, cwd):

@@ -108,6 +108,7 @@ def test_fewer_updates_rows_are_compared_with_the_plain_loop_at_the_same_samples
     )
 
 
+@pytest.mark.slow
 def test_bench_console_is_free_of_library_notices(tmp_path):
     """drs-bench, like the training apps, filters ManiSkill's and TorchRL's routine notices (console.py)."""
     import subprocess
@@ -156,6 +157,7 @@ def test_bench_console_is_free_of_library_notices(tmp_path):
         assert noise not in console, (noise, console[-2000:])
 
 
+@pytest.mark.slow
 @pytest.mark.sim
 def test_the_flop_count_runs_on_a_real_phase_1_run(tmp_path):
     """drs-bench's FLOP count of one SAC update reads the run's updater (a tiny real PickCube phase 1)."""

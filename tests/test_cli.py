@@ -17,6 +17,7 @@ pytestmark = [pytest.mark.sim, pytest.mark.slow]
 
 BIN = Path(sys.executable).parent
 TINY = small(disc_batch=None, eval_every=512, checkpoint_every=512)
+DEFAULT_COLLECTOR = small(disc_batch=None, eval_every=512, checkpoint_every=512, background=True)  # the config's own
 DISC = ["reward.disc.batch_size=32"]
 
 
@@ -31,7 +32,7 @@ def learned(tmp_path_factory):
     # a wide placement threshold makes "placed" trajectories likely even under random actions
     p = run(
         "drs-learn",
-        *TINY,
+        *DEFAULT_COLLECTOR,
         *DISC,
         "logger.tensorboard=true",
         "+env.variant_overrides.goal_thresh=0.08",

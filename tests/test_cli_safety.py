@@ -14,7 +14,7 @@ from budgets import small
 pytestmark = [pytest.mark.sim, pytest.mark.slow]
 
 BIN = Path(sys.executable).parent
-TINY = small(eval_every=512, checkpoint_every=512, progress_bar=None)
+TINY = small(eval_every=512, checkpoint_every=512, progress_bar=None, background=True)
 LIBRARY_CHATTER = (
     "Requested to use render device",
     "No initial pose set",

@@ -15,7 +15,13 @@ pytestmark = [pytest.mark.sim]
 
 BACKGROUND = "algo.collector._target_=torchrl.collectors.AsyncCollector"
 TINY = small(
-    frames=None, learning_starts=None, log_every=None, eval_every=None, eval_episodes=0, checkpoint_every=1_000_000
+    frames=None,
+    learning_starts=None,
+    log_every=None,
+    eval_every=None,
+    eval_episodes=0,
+    checkpoint_every=1_000_000,
+    background=True,
 )
 
 
@@ -24,6 +30,7 @@ def config(*overrides):
         return compose("learn", overrides=[BACKGROUND, *TINY, *overrides])
 
 
+@pytest.mark.slow
 def test_background_worker_acts_with_the_updated_actor(tmp_path):
     tr = Run(config("total_frames=100000", "algo.learning_starts=0"), "learn", tmp_path)
     assert tr.collects_in_background
@@ -48,6 +55,7 @@ def test_background_worker_acts_with_the_updated_actor(tmp_path):
         tr.close()
 
 
+@pytest.mark.slow
 def test_background_run_keeps_utd_exact_and_saves(tmp_path):
     tr = Run(
         config("total_frames=768", "algo.learning_starts=256", "algo.frames_per_batch=64", "logger.interval=256"),

@@ -448,6 +448,7 @@ def test_policy_demo_errors_name_the_problem(tmp_path, capsys):
         env.close()
 
 
+@pytest.mark.slow
 def test_planner_demos_replayed_in_the_agents_controller(pick_cube, tmp_path):
     """--control-mode pd_ee_delta_pos (the agent's): ManiSkill's converter replays each solution in the agent's
     controller; the recorded actions, replayed from the same seed in that controller, succeed again."""
@@ -485,6 +486,7 @@ def test_planner_demos_replayed_in_the_agents_controller(pick_cube, tmp_path):
         env.close()
 
 
+@pytest.mark.slow
 @pytest.mark.sim
 def test_a_stage_ablation_relabels_the_demonstrations_and_their_previous_states(pick_cube, tmp_path, capsys):
     """env.stages=[is_grasped, success] (Sec. 5.4.1) with three-stage demonstrations: every state's

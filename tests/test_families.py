@@ -168,6 +168,7 @@ def test_one_named_variant_stays_fixed():
         env.close()
 
 
+@pytest.mark.slow
 def test_turn_valve_episodes_end_at_their_own_levels_time_limit():
     """ManiSkill's RotateValve levels have their own time limits (80 / 150 / 300); a pooled env keeps them."""
     from drs_torchrl.envs.variants.valve import LEVEL_STEPS
@@ -293,6 +294,7 @@ def test_asset_backed_families_fail_at_once_with_the_download_command(name):
         assert f"python -m mani_skill.utils.download_asset {ASSET_BACKED[name]} -y" in str(e.value)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["pick_and_place", "stack_cube", "place_sphere", "cross_robot"])
 def test_motion_planner_demos_for_the_new_families(name):
     from drs_torchrl.demos import check_demos, record_demos

@@ -66,6 +66,7 @@ def test_the_wheel_metadata_has_one_version_the_license_every_script_and_one_ope
     assert "drs-probe" in scripts and all(f"{name} = {target}" in entry_points for name, target in scripts.items())
 
 
+@pytest.mark.slow
 def test_conf_dir_finds_the_configs_inside_an_installed_package(wheel, tmp_path):
     """Unpacked as pip installs it, outside the repository: the apps' config directory is the package's own."""
     site = tmp_path / "site"

@@ -58,6 +58,7 @@ def _trainer(tmp_path, precision):
     return Run(cfg, "learn", tmp_path)
 
 
+@pytest.mark.slow
 @pytest.mark.sim
 def test_bf16_learner_multiplies_in_bf16_and_keeps_fp32_weights_state_and_losses(tmp_path):
     tr = _trainer(tmp_path, "bf16")
@@ -85,6 +86,7 @@ def test_bf16_learner_multiplies_in_bf16_and_keeps_fp32_weights_state_and_losses
         assert d.dtype == torch.float32
 
 
+@pytest.mark.slow
 @pytest.mark.sim
 def test_bf16_sac_loss_matches_fp32_on_the_same_batch(tmp_path):
     """Same networks, same replay batch, same sampling noise: the bf16 losses are the fp32 ones

@@ -159,6 +159,7 @@ def test_progress_prints_one_line_per_evaluation_without_a_terminal(capsys):
     assert "500 steps, eval success 0.25, train success 0.50, disc acc 0.75" in lines[1]
 
 
+@pytest.mark.slow
 def test_a_failed_run_stops_the_others_and_names_its_log(tmp_path):
     out = tmp_path / "qs"
     # the baseline fails at once (bad reward name) while phase 1 is still running beside it

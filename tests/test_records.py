@@ -86,6 +86,7 @@ def test_a_pin_refuses_a_reward_whose_hash_differs_and_one_never_committed(tmp_p
 RECORD = "results/reuse/pick_cube/run_files/placed_5cm_s0"  # its config.yaml names runs/reuse_pick_cube/... (gone)
 
 
+@pytest.mark.slow
 def test_drs_eval_refuses_a_record_whose_reward_hash_differs_in_one_line(tmp_path):
     rec = tmp_path / "placed_5cm_s0"
     shutil.copytree(REPO / RECORD, rec)
@@ -102,6 +103,7 @@ def test_drs_eval_refuses_a_record_whose_reward_hash_differs_in_one_line(tmp_pat
     assert p.stderr.strip().count("\n") == 0 and "sha256 differs" in p.stderr, p.stderr
 
 
+@pytest.mark.slow
 @pytest.mark.sim
 def test_a_committed_reuse_record_evaluates_from_outside_the_checkout(tmp_path):
     """The record names runs/reuse_pick_cube/learn-placed_5cm_s0/checkpoints/reward.pt, which only existed on the machine

@@ -18,7 +18,7 @@ from budgets import small
 pytestmark = [pytest.mark.sim, pytest.mark.slow]
 
 BIN = Path(sys.executable).parent
-TINY = [*small(frames=None, checkpoint_every=512), "+env.variant_overrides.goal_thresh=0.08"]
+TINY = [*small(frames=None, checkpoint_every=512, background=True), "+env.variant_overrides.goal_thresh=0.08"]
 
 
 def _wait_for_state(run_dir: Path, frames: int, proc, timeout=240):

@@ -147,6 +147,7 @@ def _on_small_filesystem(tmp_path: Path, code: str, size: str = "1m") -> dict:
     return json.loads(p.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 def test_a_full_disk_is_one_error_and_leaves_no_partial_files(tmp_path):
     """On a 1 MB filesystem: a 2 MB buffer snapshot is refused before its memory map could fault (SIGBUS),
     a checkpoint over an older one keeps the older one, and a text write that fills the disk is reported;

@@ -10,6 +10,7 @@ exploration annealed to zero (the analysis assumes the policy converges).
 
 from collections import deque
 
+import pytest
 import numpy as np
 import torch
 from tensordict import TensorDict
@@ -59,6 +60,7 @@ def sa_onehot(s, a):
     return x
 
 
+@pytest.mark.slow
 def test_greedy_on_the_learned_reward_follows_shortest_paths():
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # tiny tensors: one thread is faster and deterministic

@@ -68,6 +68,7 @@ def _env_with(name):
     return _env(_seeded(MAKERS[name]))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", MAKERS)
 def test_single_env_and_inside_and_outside_batched_envs(name):
     maker = functools.partial(_seeded, MAKERS[name])

@@ -36,6 +36,7 @@ def config(*extra):
         return compose("learn", overrides=[*TINY_PPO, *extra])
 
 
+@pytest.mark.slow
 @pytest.mark.sim
 def test_ppo_phase_1_trains_the_reward_learner_and_rewards_its_batches_with_it(tmp_path):
     summary = Run(config("total_frames=2000"), "learn", tmp_path).run()
