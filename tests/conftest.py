@@ -30,14 +30,17 @@ def cli(monkeypatch, capsys):
     import sys
     import warnings
 
-    from drs_torchrl.apps import cli as apps
-
     def call(app: str, *args: str) -> tuple[int, str]:
-        from drs_torchrl.apps import maze, quickstart
+        import importlib
 
-        main = {"learn": apps.learn_main, "reuse": apps.reuse_main, "maze": maze.main, "quickstart": quickstart.main}[
-            app
-        ]
+        apps = {
+            "learn": "cli:learn_main",
+            "reuse": "cli:reuse_main",
+            "maze": "maze:main",
+            "quickstart": "quickstart:main",
+        }
+        module, name = apps[app].split(":")  # imported when called: drs-maze imports torch at module level
+        main = getattr(importlib.import_module(f"drs_torchrl.apps.{module}"), name)
         env, filters, streams = dict(os.environ), warnings.filters[:], (sys.stdout, sys.stderr)
         monkeypatch.setattr(sys, "argv", [f"drs-{app}", *args])
         code = 0
