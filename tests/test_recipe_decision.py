@@ -67,7 +67,8 @@ def test_the_rule_names_each_comparison_and_the_recipe_as_the_preregistration_sa
     )
     assert "**All runs finished: the verdicts are final.**" in text
     assert "DrS vs sparse: **DrS beats sparse**" in text
-    assert "DrS vs semi_sparse: **no difference**" in text
+    semi = next(line for line in text.splitlines() if line.startswith("- DrS vs semi_sparse"))
+    assert "**no difference**" in semi and "neither arm" not in semi  # both arms above the margin: a real tie
     assert "DrS vs dense: **dense beats DrS**" in text
     assert "**works** (5 of 6 DrS runs end at >= 0.5; per phase-1 reward 3 and 2 of 3)" in text
 
@@ -82,7 +83,10 @@ def test_a_final_margin_without_the_auc_is_no_difference(tmp_path):
 
 def test_the_recipe_fails_works_partly_and_the_case_the_rule_leaves_open(tmp_path):
     none = {a: [0.0] * 3 for a in ARMS}
-    assert "**fails** (0 of 6" in decide(make_record(tmp_path / "a", none))
+    text = decide(make_record(tmp_path / "a", none))
+    assert "**fails** (0 of 6" in text
+    # every arm at 0.00: "no difference" by the rule, with the note that no arm could meet the margin
+    assert "DrS vs dense: **no difference** (final +0.00, AUC +0.000); neither arm's mean final reaches 0.2" in text
     one = {**none, "drs-learn1": [0.0, 0.7, 0.0]}
     assert "**works partly** (1 of 6" in decide(make_record(tmp_path / "b", one))
     lopsided = {**none, "drs-learn0": [0.9, 0.9, 0.9], "drs-learn1": [0.9, 0.0, 0.0]}  # 4 of 6, but 3 + 1
@@ -121,7 +125,7 @@ def test_the_readme_columns_name_each_family_verdict(tmp_path):
     ).stdout
     rows = {line.split(" | ")[0].strip("| "): line.split(" | ")[1:] for line in out.splitlines()[2:]}
     assert rows["DrS beats sparse"][0].startswith("**DrS beats sparse**; sparse 0.00")
-    assert rows["DrS beats sparse"][1].startswith("**no difference**; sparse 0.00")
+    assert rows["DrS beats sparse"][1].startswith("**no difference** (no signal: both below 0.2); sparse 0.00")
     assert (
         rows["DrS beats dense (ManiSkill's dense reward, minus 1)"][1]
         == "not decidable yet; dense 0.00 [0.000] (2 of 3 runs so far) |"

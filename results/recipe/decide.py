@@ -28,6 +28,10 @@ HORIZON, MARGIN, WORKS_AT = 300_000, 0.2, 0.5
 # successes are multiples of 1/20 and their means floats: a difference of exactly 0.2 may compute as 0.19999999999999998
 TOLERANCE = 1e-9
 BASELINES = ("sparse", "semi_sparse", "dense")
+NO_SIGNAL = (
+    "neither arm's mean final reaches 0.2, the rule's margin, so this 'no difference' is an absence of signal at this "
+    "budget, not evidence that the rewards are equal (a note beside the rule, not part of it)"
+)
 
 
 def run_metrics(run_dir: Path) -> dict | None:
@@ -77,7 +81,9 @@ def decide(folder: Path) -> dict:
             if -d_final >= MARGIN - TOLERANCE and d_auc < 0
             else "no difference"
         )
-        versus[x] = {"verdict": verdict, "d_final": d_final, "d_auc": d_auc}
+        # reported beside the verdict, not part of the rule: with both means under the margin no arm could show one
+        no_signal = max(means["drs"]["final"], means[x]["final"]) < MARGIN - TOLERANCE
+        versus[x] = {"verdict": verdict, "d_final": d_final, "d_auc": d_auc, "no_signal": no_signal}
     recipe = None
     if "drs" in complete:
         by_reward = {r: [rows[n]["final"] >= WORKS_AT for n in rows if n.startswith(f"drs-learn{r}_")] for r in (0, 1)}
@@ -150,7 +156,10 @@ def decision_md(folder: Path, r: dict) -> str:
         if v is None:
             out.append(f"- DrS vs {x}: not decidable yet (an arm is incomplete)")
         else:
-            out.append(f"- DrS vs {x}: **{v['verdict']}** (final {v['d_final']:+.2f}, AUC {v['d_auc']:+.3f})")
+            out.append(
+                f"- DrS vs {x}: **{v['verdict']}** (final {v['d_final']:+.2f}, AUC {v['d_auc']:+.3f})"
+                + (f"; {NO_SIGNAL}" if v["no_signal"] else "")
+            )
     rec = r["recipe"]
     if rec:
         out.append(
@@ -191,7 +200,11 @@ def claims_columns(folders: list[Path]) -> str:
         cells = []
         for r in results:
             v = r["versus"][x]
-            verdict = f"**{v['verdict']}**" if v else "not decidable yet"
+            verdict = (
+                (f"**{v['verdict']}**" + (" (no signal: both below 0.2)" if v["no_signal"] else ""))
+                if v
+                else "not decidable yet"
+            )
             cells.append(f"{verdict}; {LABELS[x]} {arm(r, x)}")
         lines.append(f"| DrS beats {LABELS[x]}{ROW_NOTES.get(x, '')} | " + " | ".join(cells) + " |")
     cells = []
