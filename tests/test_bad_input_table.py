@@ -68,7 +68,9 @@ def test_message_kind_tells_a_refusal_from_another_check():
     stale = (
         "drs-learn: error: demos.stage_buffers=true is a setting of the demonstrations in demos.path, which is not set"
     )
-    fixed = "drs-learn: error: cannot resume: /tmp/drs-bad-x/case29/good/checkpoints/state/trainer.pt is damaged"
+    fixed = (  # the refusal this case gets now
+        "drs-learn: error: /tmp/drs-bad-x/case29/good/checkpoints/state/trainer.pt cannot be read (corrupt or truncated"
+    )
     assert message_kind(stale) != message_kind(fixed)
     assert message_kind(fixed) == message_kind(fixed.replace("/tmp/drs-bad-x/case29", "/tmp/drs-bad-y/case30"))
 

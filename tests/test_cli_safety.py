@@ -140,7 +140,7 @@ def test_drs_demos_console_shows_no_library_chatter_unless_asked(tmp_path):
     assert "1 demonstrations" in out
     for msg in LIBRARY_CHATTER:
         assert msg not in out, msg
-    # DRS_LIBRARY_MESSAGES=1 shows them (the console scripts' shared switch): test_drs_bench_collector_workers_...
+    # DRS_LIBRARY_MESSAGES=1 shows them (the console scripts' shared switch): test_drs_bench_collector_workers_filter_library_messages
 
 
 # ---------------------------------------------------------------------------------------------- issue 48

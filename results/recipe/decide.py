@@ -29,8 +29,8 @@ HORIZON, MARGIN, WORKS_AT = 300_000, 0.2, 0.5
 TOLERANCE = 1e-9
 BASELINES = ("sparse", "semi_sparse", "dense")
 NO_SIGNAL = (
-    "neither arm's mean final reaches 0.2, the rule's margin, so this 'no difference' is an absence of signal at this "
-    "budget, not evidence that the rewards are equal (a note beside the rule, not part of it)"
+    f"neither arm's mean final reaches {MARGIN}, the rule's margin, so this 'no difference' is an absence of signal at "
+    "this budget, not evidence that the rewards are equal (a note beside the rule, not part of it)"
 )
 
 
@@ -201,7 +201,7 @@ def claims_columns(folders: list[Path]) -> str:
         for r in results:
             v = r["versus"][x]
             verdict = (
-                (f"**{v['verdict']}**" + (" (no signal: both below 0.2)" if v["no_signal"] else ""))
+                (f"**{v['verdict']}**" + (f" (no signal: both below {MARGIN})" if v["no_signal"] else ""))
                 if v
                 else "not decidable yet"
             )
