@@ -39,7 +39,7 @@ def test_nan_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path):
         tr.run()
     saved = int((tmp_path / "checkpoints" / "state" / "COMPLETE").read_text())
     assert saved == 256
-    payload = torch.load(tmp_path / "checkpoints" / "state" / "trainer.pt", weights_only=False)
+    payload = torch.load(tmp_path / "checkpoints" / "state" / "trainer.pt", weights_only=True)
     assert all(torch.isfinite(v).all() for v in payload["loss"].values() if v.is_floating_point())
     DrSReward.from_checkpoint(tmp_path / "checkpoints" / "reward.pt")  # finite, loadable
     # and the run resumes from it

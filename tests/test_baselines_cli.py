@@ -124,7 +124,7 @@ def test_a_classifier_run_resumes_with_its_data(tmp_path, demos, method):
     p = _run("drs-learn", *TINY, f"reward={method}", *extra, f"hydra.run.dir={run}", cwd=tmp_path)
     assert p.returncode == 0, p.stderr[-3000:]
     first = json.loads((run / "summary.json").read_text())
-    state = torch.load(run / "checkpoints" / "state" / "trainer.pt", weights_only=False)
+    state = torch.load(run / "checkpoints" / "state" / "trainer.pt", weights_only=True)
     assert state["learner"]["updates"] == first["disc_updates"]
     p = _run("drs-learn", f"resume={run}", "total_frames=512", cwd=tmp_path)
     assert p.returncode == 0, p.stderr[-3000:]
@@ -163,7 +163,7 @@ def test_fine_tuning_starts_from_the_phase1_agent(tmp_path):
     static = [a for a in TINY if not a.startswith("reward.disc")]  # static rewards have no learner settings
     p = _run("drs-learn", *static, "reward=sparse", f"hydra.run.dir={learn}", cwd=tmp_path)
     assert p.returncode == 0, p.stderr[-3000:]
-    ck = torch.load(learn / "checkpoints" / "policy.pt", weights_only=False)
+    ck = torch.load(learn / "checkpoints" / "policy.pt", weights_only=True)
     cfg = OmegaConf.load(learn / "config.yaml")
     cfg.phase, cfg.env.split = "reuse", "test"
     cfg.init_from = str(learn)

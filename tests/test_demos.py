@@ -438,7 +438,7 @@ def test_policy_demo_errors_name_the_problem(tmp_path, capsys):
     try:
         with pytest.raises(PolicyCheckpointError, match="family 'half_cheetah', not 'pick_cube'"):
             load_policy(run, env.observation_spec, env.action_spec, family="pick_cube")
-        ck = torch.load(run / "checkpoints" / "policy.pt", weights_only=False)
+        ck = torch.load(run / "checkpoints" / "policy.pt", weights_only=True)
         first = next(k for k in ck["actor"] if k.endswith("weight"))
         ck["actor"][first] = torch.zeros(32, 99)
         torch.save(ck, run / "checkpoints" / "policy.pt")

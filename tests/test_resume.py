@@ -58,7 +58,7 @@ def test_sigkill_then_resume_continues_from_the_saved_step(tmp_path):
 
     state_dir = find_training_state(run_dir)
     saved_frames = int((state_dir / "COMPLETE").read_text())
-    payload = torch.load(state_dir / "trainer.pt", weights_only=False)
+    payload = torch.load(state_dir / "trainer.pt", weights_only=True)
     assert payload["counters"]["frames"] == saved_frames
 
     # the restored trainer holds exactly what was saved

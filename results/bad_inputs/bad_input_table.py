@@ -154,6 +154,52 @@ def damage_state(run: Path) -> None:
     f.write_bytes(f.read_bytes()[:100])
 
 
+class _Payload:
+    """Unpickling it creates ``RAN`` inside the run: a loader that ran the file's code shows as "files touched"."""
+
+    def __init__(self, marker: Path):
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        return (open, (self.marker, "w"))  # an empty file: the run's digest changes
+
+
+def craft(f: Path, marker: Path) -> None:
+    """``f`` as it was, plus a pickled call (a file from elsewhere that would run code)."""
+    torch.save({**torch.load(f, weights_only=True), "extra": _Payload(marker)}, f)
+
+
+def craft_policy(run: Path) -> None:
+    craft(run / "checkpoints" / "policy.pt", run / "RAN")
+
+
+def craft_state(run: Path) -> None:
+    craft(run / "checkpoints" / "state" / "trainer.pt", run / "RAN")
+
+
+def craft_config_target(run: Path) -> None:
+    cfg = yaml.safe_load((run / "config.yaml").read_text())
+    cfg["algo"]["optim"]["_target_"] = "os.system"
+    (run / "config.yaml").write_text(yaml.safe_dump(cfg))
+
+
+def eval_beside_a_writer(case: Case, d: Path) -> tuple[int, str, bool]:
+    """drs-eval of a run another process holds the lock of: refused before its episodes, the run untouched."""
+    run = d / "good"
+    before = digest(run)
+    holder = subprocess.Popen(
+        [sys.executable, "-c", f"from drs_torchrl.rundir import lock_run_dir; lock_run_dir({str(run)!r}); input()"],
+        stdin=subprocess.PIPE,
+        env=dict(os.environ, PYTHONPATH=str(ROOT / "src")),
+    )
+    t0 = time.time()
+    while not ((run / LOCK).is_file() and (run / LOCK).read_text().strip()) and time.time() - t0 < 60:
+        time.sleep(0.1)
+    p = subprocess.run(_exe(_fill(case.cmd, d, d)), cwd=d, capture_output=True, text=True, timeout=600)
+    holder.communicate(b"\n", timeout=60)
+    return p.returncode, p.stderr, digest(run) == before
+
+
 def damage_demos(demos: Path) -> None:
     (demos / "meta.json").write_text("{not json")
 
@@ -312,6 +358,35 @@ def cases(work: Path, good_run: Path) -> list[Case]:
             "a reward checkpoint given to a static reward (drs-reuse reward=dense)",
             ["drs-reuse", *TINY, "reward=dense", "reward.checkpoint={good}/checkpoints/reward.pt"],
         ),
+        # files from elsewhere run no code (each carries a pickled call that would create RAN in the run)
+        Case("drs-eval of a run whose policy.pt carries pickled code", ["drs-eval", "{good}"], damage=craft_policy),
+        Case(
+            "init_from= a run whose policy.pt carries pickled code",
+            ["drs-reuse", *TINY, "reward=dense", "init_from={good}"],
+            damage=craft_policy,
+        ),
+        Case(
+            "resume= of a run whose training state carries pickled code",
+            ["drs-learn", "resume={good}"],
+            damage=craft_state,
+        ),
+        Case(
+            "a reward.pt that carries pickled code",
+            [*R, "reward.checkpoint={good}/checkpoints/reward.pt"],
+            damage=lambda run: craft(run / "checkpoints" / "reward.pt", run / "RAN"),
+        ),  # fmt: skip
+        Case(
+            "drs-eval of a run whose config.yaml names code outside the library",
+            ["drs-eval", "{good}"],
+            damage=craft_config_target,
+        ),
+        Case(
+            "resume= of a run whose config.yaml names code outside the library",
+            ["drs-learn", "resume={good}"],
+            damage=craft_config_target,
+        ),  # fmt: skip
+        Case("a non-ASCII path left unquoted", [*R, "reward.checkpoint={d}/müde/reward.pt"]),
+        Case("drs-eval of a run another process is writing", ["drs-eval", "{good}"], run=eval_beside_a_writer),
     ]
 
 

@@ -22,6 +22,7 @@ from torchrl.data import ReplayBuffer
 
 from drs_torchrl.data.persistence import SnapshotError, buffer_bytes, dump_buffer, load_buffer
 from drs_torchrl.errors import UserError
+from drs_torchrl.safe_files import UnsafeFileError, torch_load
 from drs_torchrl.rundir import ensure_free, fsync_path, fsync_tree, nbytes, space_errors
 from drs_torchrl.signals import signals_deferred
 
@@ -72,12 +73,21 @@ def _atomic_write(path: Path, write, mode: str) -> None:
 
 
 def rng_state() -> dict:
-    return {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()}
+    """The RNG states as tensors, numbers and strings (numpy's key array as an int64 tensor), which a weights-only
+    load reads."""
+    name, keys, pos, has_gauss, cached = np.random.get_state()
+    numpy_state = {"name": name, "keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos)}
+    numpy_state.update(has_gauss=int(has_gauss), cached_gaussian=float(cached))
+    return {"torch": torch.get_rng_state(), "numpy": numpy_state, "python": random.getstate()}
 
 
 def set_rng_state(state: dict) -> None:
     torch.set_rng_state(state["torch"])
-    np.random.set_state(state["numpy"])
+    n = state["numpy"]
+    if not isinstance(n, dict):  # numpy's own tuple: a state of an earlier version, converted by drs-convert
+        n = dict(zip(("name", "keys", "pos", "has_gauss", "cached_gaussian"), n))
+    keys = np.asarray(torch.as_tensor(n["keys"]).numpy(), dtype=np.uint32)
+    np.random.set_state((n["name"], keys, int(n["pos"]), int(n["has_gauss"]), float(n["cached_gaussian"])))
     random.setstate(state["python"])
 
 
@@ -163,7 +173,9 @@ class Checkpointer:
         """``(payload, state directory)`` of the newest complete state, checked for its format and phase."""
         state_dir = find_training_state(self.dir.parent)
         try:
-            payload = torch.load(state_dir / "trainer.pt", map_location="cpu", weights_only=False)
+            payload = torch_load(state_dir / "trainer.pt", "training state")
+        except UnsafeFileError:
+            raise
         except Exception as exc:
             why = str(exc).split(". ")[0].split("\n")[0]
             raise TrainingStateError(

@@ -106,8 +106,10 @@ def user_error_message(exc: BaseException) -> str | None:
         return str(exc.args[0] if isinstance(exc, KeyError) and exc.args else exc)
     if isinstance(exc, _library_user_errors()):
         cause = exc.__cause__  # Hydra's "Could not override 'x'" is caused by OmegaConf's "Key 'x' is not in struct"
-        return one_line(exc) + (
-            f" ({one_line(cause)})" if cause is not None and type(cause).__module__.startswith("omegaconf") else ""
+        return (
+            one_line(exc)
+            + (f" ({one_line(cause)})" if cause is not None and type(cause).__module__.startswith("omegaconf") else "")
+            + _quoting_hint(exc)
         )
     if isinstance(exc, OSError) and (exc.filename or exc.errno in (errno.ENOSPC, errno.EDQUOT)):
         msg = f"{exc.filename}: {exc.strerror or exc}" if exc.filename else str(exc.strerror or exc)
@@ -121,6 +123,23 @@ def user_error_message(exc: BaseException) -> str | None:
         msg = one_line(exc).rstrip(".")
         return f"gymnasium: {msg}" + ("" if "Did you mean" in msg else _close_env_ids(msg))
     return None
+
+
+def _quoting_hint(exc: BaseException) -> str:
+    """For Hydra's override-grammar errors on a value with characters its grammar does not take unquoted
+    (non-ASCII letters, ``,`` ``=`` ``[`` ...): how to quote it, shell quotes included."""
+    import re
+
+    if "override_grammar" not in str(exc) and "LexerNoViableAlt" not in str(exc):
+        return ""
+    m = re.search(r"(\S+?)=(.*?)(?:;|$)", one_line(exc).split(": ", 1)[-1])
+    if not m:
+        return ""
+    key, value = m.group(1).lstrip("'\"+~"), m.group(2).strip().strip("'\"")
+    return (
+        f"; a value with such characters (a path, say) must be quoted for Hydra inside the shell's quotes: "
+        f"'{key}=\"{value}\"'"
+    )
 
 
 def _close_env_ids(message: str) -> str:

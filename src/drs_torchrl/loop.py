@@ -9,6 +9,9 @@ same loop with no reward learner: the frozen reward sits in the env. What the lo
 
 from __future__ import annotations
 
+import multiprocessing
+import os
+
 import signal
 import time
 from collections import deque
@@ -183,6 +186,22 @@ class Every:
         return True
 
 
+def _rss_mib(pid: int | str = "self") -> float:
+    try:
+        with open(f"/proc/{pid}/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+    except (OSError, ValueError, IndexError):
+        return float("nan")
+
+
+def resident_memory() -> dict[str, float]:
+    """Resident memory in MiB of this process (``rss_mib``) and of its worker processes (``rss_workers_mib``: a
+    background collector's simulator), for train.csv: a long run's memory must stay flat once its buffers are full.
+    NaN where ``/proc`` is absent."""
+    workers = [_rss_mib(c.pid) for c in multiprocessing.active_children()]
+    return {"rss_mib": _rss_mib(), "rss_workers_mib": float(sum(workers)) if workers else 0.0}
+
+
 def run_algorithm1(
     collector: Iterable,
     updater: Updater,
@@ -218,7 +237,8 @@ def run_algorithm1(
     )  # fmt: skip
 
     def train_row() -> dict[str, float]:
-        row = {"frames": progress.frames, "updates": updater.updates, **log.timing(), **episodes.row(), **log.means()}
+        row = {"frames": progress.frames, "updates": updater.updates, **log.timing(), **resident_memory()}
+        row.update(**episodes.row(), **log.means())
         return {**row, **(learner.log_row() if learner is not None else {})}
 
     def evaluate_and_log() -> None:

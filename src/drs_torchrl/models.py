@@ -11,6 +11,7 @@ from torch import nn
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 
 from drs_torchrl.errors import UserError
+from drs_torchrl.safe_files import UnsafeFileError, torch_load
 from drs_torchrl.precision import OutputFloat32
 
 POLICY_FORMAT = "drs-torchrl/policy"  # checkpoints/policy.pt of drs-learn / drs-reuse runs
@@ -103,7 +104,9 @@ def read_policy_checkpoint(path: str | Path) -> tuple[Path, dict]:
     """``(file, checkpoint dict)`` of a policy checkpoint (see :func:`resolve_policy_path`), checked for its format."""
     file = resolve_policy_path(path)
     try:
-        ck = torch.load(file, map_location="cpu", weights_only=False)
+        ck = torch_load(file, "policy checkpoint")
+    except UnsafeFileError:
+        raise
     except Exception as exc:
         raise PolicyCheckpointError(
             f"{file}: cannot be read as a torch file ({exc.__class__.__name__}: {exc})"

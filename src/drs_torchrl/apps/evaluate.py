@@ -27,7 +27,7 @@ import torch
 
 from drs_torchrl.checkpoint import atomic_write_text
 from drs_torchrl.console import UserError, at_least, console_script
-from drs_torchrl.rundir import check_writable, load_run_config
+from drs_torchrl.rundir import check_writable, load_run_config, lock_run_dir, unlock_run_dir
 
 
 class EvalError(UserError, ValueError):
@@ -256,6 +256,13 @@ def main(argv: list[str] | None = None) -> int:
         "settings is kept)",
     )
     a = p.parse_args(argv)
+    try:
+        return _evaluate_and_report(a)
+    finally:
+        unlock_run_dir(a.run_dir)  # the lock taken below, if any (the process may go on: tests, notebooks)
+
+
+def _evaluate_and_report(a: argparse.Namespace) -> int:
     import yaml
 
     try:  # the places it writes, before minutes of episodes
@@ -265,6 +272,8 @@ def main(argv: list[str] | None = None) -> int:
             check_writable(a.out, "--out")
         elif Path(a.run_dir).is_dir() and not os.access(a.run_dir, os.W_OK | os.X_OK):
             raise EvalError(f"{a.run_dir} cannot be written (no permission): pass --out FILE for the report")
+        elif Path(a.run_dir).is_dir():  # the report goes into the run directory: not while another process writes it
+            lock_run_dir(a.run_dir, elsewhere="pass --out FILE for the report")
         overrides = {}
         for o in a.override:
             k, sep, v = o.partition("=")

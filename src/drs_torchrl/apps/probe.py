@@ -53,9 +53,10 @@ def rollout(
 
     from drs_torchrl.envs.factory import make_family_env
     from drs_torchrl.models import load_policy
+    from drs_torchrl.rundir import load_run_config
     from drs_torchrl.tasks import TASK_OBSERVATION_KEY, family_from_config, with_task_observation
 
-    cfg = OmegaConf.load(Path(policy_dir) / "config.yaml")
+    cfg = load_run_config(policy_dir, needs=("env",))
     # a reward that reads the task state gets it from the env, whatever the policy's run had
     family = with_task_observation(family_from_config(cfg.env), TASK_OBSERVATION_KEY in reward.reward_in_keys)
     overrides = {**(OmegaConf.to_container(cfg.env.variant_overrides) or {}), **(variant_overrides or {})} or None

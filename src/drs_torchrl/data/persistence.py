@@ -19,6 +19,7 @@ from torchrl.data import ReplayBuffer
 
 from drs_torchrl.console import UserError
 from drs_torchrl.rundir import ensure_free, nbytes
+from drs_torchrl.safe_files import UnsafeFileError, torch_load
 
 
 class SnapshotError(UserError, ValueError):
@@ -33,7 +34,15 @@ def load_memmap_checked(path: str | Path) -> TensorDict:
     """
     path = Path(path)
     _check_memmap_dir(path)
-    return TensorDict.load_memmap(path)
+    try:
+        return TensorDict.load_memmap(path, allow_pickle=False)  # a pickle sidecar would run code
+    except RuntimeError as exc:
+        if "pickle" not in str(exc).lower():
+            raise
+        raise UnsafeFileError(
+            f"{path}: refused: this saved TensorDict holds pickled Python objects, and unpickling runs whatever the "
+            "file names (drs-torchrl saves tensors only)"
+        ) from None
 
 
 def _check_memmap_dir(path: Path) -> None:
@@ -112,5 +121,5 @@ def load_buffer(rb: ReplayBuffer, path: str | Path) -> dict:
     for i in range(meta["parts"]):
         rb.extend(load_memmap_checked(path / f"part{i}"))  # copied page by page from the memory map
     if (path / "sampler.pt").is_file():
-        rb._sampler.load_state_dict(torch.load(path / "sampler.pt", weights_only=False))
+        rb._sampler.load_state_dict(torch_load(path / "sampler.pt", "replay sampler state"))
     return meta

@@ -27,6 +27,7 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.data import LazyMemmapStorage, LazyTensorStorage, ReplayBuffer
 from torchrl.data.replay_buffers import Sampler, Writer
+from drs_torchrl.safe_files import torch_load
 
 TRAJ_STAGE_KEY = "traj_stage"
 
@@ -197,7 +198,7 @@ class StageSampler(Sampler):
         torch.save(self.state_dict(), path / "stage_sampler.pt")
 
     def loads(self, path):
-        self.load_state_dict(torch.load(Path(path) / "stage_sampler.pt", weights_only=True))
+        self.load_state_dict(torch_load(Path(path) / "stage_sampler.pt", "stage sampler state"))
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(num_stages={self.num_stages}, counts={self._counts.tolist()})"
@@ -284,7 +285,7 @@ class StageRingWriter(Writer):
         torch.save(self.state_dict(), path / "stage_ring_writer.pt")
 
     def loads(self, path):
-        self.load_state_dict(torch.load(Path(path) / "stage_ring_writer.pt", weights_only=True))
+        self.load_state_dict(torch_load(Path(path) / "stage_ring_writer.pt", "stage writer state"))
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(capacity_per_stage={self.capacity}, filled={self._filled.tolist()})"
@@ -400,7 +401,7 @@ class StageBuffers(ReplayBuffer):
 
     def loads(self, path):
         super().loads(path)
-        extra = torch.load(Path(path) / "stage_buffers.pt", weights_only=True)
+        extra = torch_load(Path(path) / "stage_buffers.pt", "stage buffer state")
         self.episodes_per_stage = extra["episodes_per_stage"].numpy().astype(np.int64)
 
     def state_dict(self) -> dict[str, Any]:

@@ -29,6 +29,7 @@ from torchrl.envs.transforms import Transform
 
 from drs_torchrl.errors import UserError
 from drs_torchrl.rundir import fsync_path
+from drs_torchrl.safe_files import UnsafeFileError, torch_load
 
 CHECKPOINT_FORMAT = "drs-torchrl/reward"
 CHECKPOINT_VERSION = 1
@@ -372,12 +373,24 @@ def write_reward_checkpoint(path: str | os.PathLike, config: dict, state_dict: M
 def read_reward_checkpoint(path: str | os.PathLike, map_location="cpu") -> dict:
     """The payload of a reward checkpoint; raises :class:`RewardCheckpointError` with the cause."""
     path = Path(path)
+    if path.is_dir():
+        inside = [f for f in (path / "checkpoints" / "reward.pt", path / "reward.pt") if f.is_file()]
+        raise RewardCheckpointError(
+            f"reward checkpoint {path} is a directory; pass the file: "
+            + (
+                f"reward.checkpoint={inside[0]}"
+                if inside
+                else "the reward.pt that drs-learn wrote (RUN/checkpoints/reward.pt)"
+            )
+        )
     if not path.is_file():
         raise RewardCheckpointError(
             f"reward checkpoint {path} does not exist (pass reward.checkpoint=PATH to a reward.pt written by drs-learn)"
         )
     try:
-        payload = torch.load(path, map_location=map_location, weights_only=True)
+        payload = torch_load(path, "reward checkpoint", map_location=map_location)
+    except UnsafeFileError:
+        raise
     except Exception as exc:
         raise RewardCheckpointError(f"{path} is not a readable checkpoint (corrupt or truncated?): {exc}") from exc
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
