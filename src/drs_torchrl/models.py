@@ -10,7 +10,7 @@ from tensordict.nn import NormalParamExtractor, TensorDictModule, TensorDictSequ
 from torch import nn
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 
-from drs_torchrl.errors import UserError
+from drs_torchrl.errors import ConfigError, UserError
 from drs_torchrl.safe_files import UnsafeFileError, torch_load
 from drs_torchrl.precision import OutputFloat32
 
@@ -32,6 +32,18 @@ def _in_features(observation_spec, keys: Sequence[str]) -> int:
     return sum(int(observation_spec[k].shape[-1]) for k in keys)
 
 
+NORMS = (None, "layer")
+
+
+def _norm(kind: str | None, hidden: Sequence[int]) -> dict:
+    """TorchRL ``MLP`` arguments for a normalisation after each hidden layer's linear map (before its activation)."""
+    if kind not in NORMS:
+        raise ConfigError(f"algo.critic_norm / algo.actor_norm: unknown normalisation {kind!r}; choose null or layer")
+    if kind is None:
+        return {}
+    return {"norm_class": nn.LayerNorm, "norm_kwargs": [{"normalized_shape": int(w)} for w in hidden]}
+
+
 def make_sac_modules(
     observation_spec,
     action_spec,
@@ -40,6 +52,8 @@ def make_sac_modules(
     activation: type[nn.Module] = nn.ReLU,
     device: torch.device | str | None = None,
     return_log_prob: bool = False,
+    critic_norm: str | None = None,
+    actor_norm: str | None = None,
 ) -> tuple[ProbabilisticActor, ValueOperator]:
     """A tanh-Gaussian actor and a Q-value network reading ``in_keys`` (+ ``"action"``).
 
@@ -47,13 +61,18 @@ def make_sac_modules(
     (the stage indicators can be policy inputs, as in the authors' code). The modules are built on
     ``device`` (default: the spec's device). ``return_log_prob``: the actor also writes its actions' log-probability
     (PPO's importance ratio); the parameters are the same either way, so a policy checkpoint loads into both.
+    ``critic_norm`` / ``actor_norm``: ``"layer"`` puts a LayerNorm after every hidden layer's linear map (RLPD, BRO,
+    SimBa: the critic's values stay bounded at high update ratios); None: the paper's plain MLPs.
     """
     in_keys = list(in_keys)
     n_obs = _in_features(observation_spec, in_keys)
     n_act = int(action_spec.shape[-1])
     # each MLP ends in a parameterless fp32 cast: under bf16/fp16 autocast only the MLPs' matrix work is
     # low-precision, the distribution, log-probs and losses stay fp32 (drs_torchrl.precision)
-    actor_mlp = MLP(in_features=n_obs, out_features=2 * n_act, num_cells=list(hidden), activation_class=activation)
+    actor_mlp = MLP(
+        in_features=n_obs, out_features=2 * n_act, num_cells=list(hidden), activation_class=activation,
+        **_norm(actor_norm, hidden),
+    )  # fmt: skip
     actor_mlp.append(OutputFloat32())
     actor_net = TensorDictSequential(
         TensorDictModule(
@@ -76,7 +95,10 @@ def make_sac_modules(
         return_log_prob=return_log_prob,
         default_interaction_type="random",
     )
-    qnet = MLP(in_features=n_obs + n_act, out_features=1, num_cells=list(hidden), activation_class=activation)
+    qnet = MLP(
+        in_features=n_obs + n_act, out_features=1, num_cells=list(hidden), activation_class=activation,
+        **_norm(critic_norm, hidden),
+    )  # fmt: skip
     qnet.append(OutputFloat32())
     qvalue = ValueOperator(qnet, in_keys=[*in_keys, "action"])
     device = torch.device(device) if device is not None else observation_spec.device or torch.device("cpu")
@@ -140,7 +162,7 @@ def load_policy(
     if missing:
         raise PolicyCheckpointError(f"{file}: the policy reads {missing}, which this env does not produce")
     try:
-        actor, _ = make_sac_modules(observation_spec, action_spec, keys, ck["hidden"])
+        actor, _ = make_sac_modules(observation_spec, action_spec, keys, ck["hidden"], actor_norm=ck.get("actor_norm"))
         actor.load_state_dict(ck["actor"])
     except RuntimeError as exc:  # size mismatches
         sizes = {k: int(observation_spec[k].shape[-1]) for k in keys}

@@ -51,8 +51,11 @@ class SACUpdater(Updater):
         device: torch.device | str = "cpu",
         grad_scaler=None,
         compile_kwargs: dict | None = None,
+        critic_norm: str | None = None,
+        actor_norm: str | None = None,
     ):
         super().__init__()
+        self.critic_norm, self.actor_norm = critic_norm, actor_norm
         self.actor, self.qvalue, self.loss, self.target_updater = actor, qvalue, loss, target_updater
         self.policy = self.eval_policy = actor
         self.optimizers = optimizers
@@ -131,6 +134,8 @@ class SACUpdater(Updater):
         return {
             "policy_in_keys": self.policy_in_keys,
             "hidden": self.hidden,
+            "actor_norm": self.actor_norm,
+            "critic_norm": self.critic_norm,
             "actor": self.actor.state_dict(),
             # SACLoss trains its own stacked copies of the critics (one per Q-net), not self.qvalue
             "qvalue_params": self.loss.qvalue_network_params.data.cpu().to_dict(),
@@ -146,6 +151,12 @@ class SACUpdater(Updater):
             problems.append(
                 f"its networks read {ck['policy_in_keys']} with hidden {ck['hidden']}, this run's read "
                 f"{self.policy_in_keys} with hidden {self.hidden}"
+            )
+        norms = (ck.get("actor_norm"), ck.get("critic_norm"))
+        if norms != (self.actor_norm, self.critic_norm):
+            problems.append(
+                f"its actor and critics are normalised {norms}, this run's {(self.actor_norm, self.critic_norm)} "
+                "(algo.actor_norm / algo.critic_norm)"
             )
         if "qvalue_params" not in ck:
             problems.append("it holds no critics")
@@ -183,13 +194,18 @@ def make_sac_updater(
     demo_batch: int = 0,
     compile: bool = False,
     compile_kwargs: dict | None = None,
+    critic_norm: str | None = None,
+    actor_norm: str | None = None,
 ) -> SACUpdater:
     """A :class:`SACUpdater` for ``env``'s specs from the ``algo`` config's partials (``loss``: ``SACLoss``,
     ``optim``, ``target_update``) over ``replay`` (its transform: the learned ``reward``, recomputed at sampling);
-    ``demo_replay`` / ``demo_batch``: the demonstrations' share of each batch."""
+    ``demo_replay`` / ``demo_batch``: the demonstrations' share of each batch; ``critic_norm`` / ``actor_norm``:
+    :func:`~drs_torchrl.models.make_sac_modules`' normalisation (``loss`` may be another of TorchRL's SAC-family
+    losses taking the same networks, e.g. ``REDQLoss``: an ensemble of critics)."""
     actor, qvalue = make_sac_modules(
-        env.observation_spec, env.action_spec, list(policy_in_keys), list(hidden), device=device
-    )
+        env.observation_spec, env.action_spec, list(policy_in_keys), list(hidden), device=device,
+        critic_norm=critic_norm, actor_norm=actor_norm,
+    )  # fmt: skip
     kwargs = {}
     if precision != "fp32":
         # torch.autocast does not reach inside torch.vmap (the twin critics' batched pass would stay fp32):
@@ -219,4 +235,6 @@ def make_sac_updater(
         device=device,
         grad_scaler=grad_scaler,
         compile_kwargs=(compile_kwargs or {}) if compile else None,
+        critic_norm=critic_norm,
+        actor_norm=actor_norm,
     )
