@@ -63,6 +63,7 @@ refuses a file whose hash differs. ``config.yaml`` stays as the run composed it.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import itertools
 import json
 import os
@@ -743,8 +744,8 @@ def _env_split(run_dir: Path) -> str:
 
 
 def _driver_lock(root: Path):
-    """The one submitit driver of a run root: an open, flock-ed ``ROOT/logs/driver.lock`` (kept while the driver
-    lives), or the pid of the driver that holds it."""
+    """The one submitit driver of a run root: ``ROOT/logs/driver.lock``, open and flock-ed (held until it is
+    closed), or, where another process holds it, that process's pid (a string)."""
     import fcntl
 
     (root / "logs").mkdir(parents=True, exist_ok=True)
@@ -803,6 +804,11 @@ def _jobs_note(root: Path, runs: list[Run], max_resubmits: int) -> dict[str, str
 
 @console_script("drs-study")
 def main(argv: list[str] | None = None) -> int:
+    with contextlib.ExitStack() as held:  # the driver lock of a submitit call, released on return
+        return _main(argv, held)
+
+
+def _main(argv: list[str] | None, held: contextlib.ExitStack) -> int:
     p = argparse.ArgumentParser(prog="drs-study", description=__doc__.split("\n")[0])
     p.add_argument("study", help="study YAML file")
     p.add_argument(
@@ -878,7 +884,7 @@ def main(argv: list[str] | None = None) -> int:
         from drs_torchrl.apps.study_cluster import SubmititRuns, Submitted, ended, read_jobs, write_jobs
 
         lock = _driver_lock(root)
-        if not hasattr(lock, "write"):
+        if isinstance(lock, str):
             what = "cancel their jobs" if a.cancel else "follow the same jobs"
             print(
                 f"drs-study: error: another drs-study call (pid {lock}) follows the jobs of {root}; stop it first "
@@ -886,7 +892,7 @@ def main(argv: list[str] | None = None) -> int:
                 file=sys.stderr,
             )
             return 2
-        executor = a.executor
+        held.callback(lock.close)
         if a.cancel:
             for r in runs:
                 rec = read_jobs(root, r.name)
@@ -895,7 +901,7 @@ def main(argv: list[str] | None = None) -> int:
                     if cancelled:
                         print(f"drs-study: {r.name}: {cancelled} cancelled (the run saves its state)", flush=True)
             return 0
-        jobs = SubmititRuns(executor, root, cluster)
+        jobs = SubmititRuns(a.executor, root, cluster)
     busy = [r.name for r in runs if states[r.name] == "running"]
     active: dict = {}  # run name -> its child process (local) or the job followed (submitit)
     if jobs is not None:  # a driver started again: follow the jobs still queued or running, note those that ended

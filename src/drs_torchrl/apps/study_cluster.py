@@ -62,6 +62,7 @@ _KEYS = {
     "gpus": "GPUs per job (sbatch --gpus-per-node); > 0 also runs each run with device=cuda",
     "max_jobs": "jobs queued or running at once (default: all that are ready; submitit-local: --jobs)",
     "max_resubmits": "jobs in a row that may end without the run saving progress before it is given up (default 3)",
+    "signal_delay_s": "Slurm: seconds before the time limit at which a run is told to save (default 90)",
     "setup": "shell lines run in each Slurm job before the run (module load ..., source .venv/bin/activate)",
     "slurm_additional": "more sbatch options as a mapping (account: x, qos: y, constraint: z)",
 }
@@ -78,6 +79,7 @@ class Cluster:
     gpus: int = 0
     max_jobs: int | None = None
     max_resubmits: int = 3
+    signal_delay_s: int | None = None
     setup: list[str] = field(default_factory=list)
     slurm_additional: dict[str, str] = field(default_factory=dict)
 
@@ -93,6 +95,8 @@ class Cluster:
                 params["mem_gb"] = self.mem_gb
             if self.partition:
                 params["slurm_partition"] = self.partition
+            if self.signal_delay_s is not None:
+                params["slurm_signal_delay_s"] = self.signal_delay_s
             if self.setup:
                 params["slurm_setup"] = list(self.setup)
             if self.slurm_additional:
@@ -127,7 +131,7 @@ def parse_cluster(spec) -> Cluster:
                 raise ValueError(f"slurm_additional maps sbatch options to values, got {value!r}")
             value = {str(k): str(v) for k, v in value.items()}
         else:
-            low = 0 if key in ("gpus", "max_resubmits") else 1
+            low = 0 if key in ("gpus", "max_resubmits", "signal_delay_s") else 1
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ValueError(f"{key} must be a whole number >= {low}, got {value!r}")
         setattr(c, key, value)
