@@ -8,6 +8,7 @@ what has finished, so the same command is re-run across sessions until the study
     drs-study results/precision/study.yaml --status          # what is done, what is left
     drs-study results/precision/study.yaml --check           # every run's config composed and validated, nothing run
     drs-study results/precision/study.yaml --report results/precision   # the record to commit (below)
+    drs-study results/precision/study.yaml --executor slurm   # each run a Slurm job through submitit (below)
 
 Study file::
 
@@ -36,6 +37,13 @@ A run is finished when its ``summary.json`` says it was not interrupted and it r
 runs). SIGINT/SIGTERM to the study stop every run at its next batch boundary (each
 saves its training state) and the study exits 130/143; re-invoke it to continue.
 (Hydra's multirun launchers start every job afresh and know neither resuming nor skipping.)
+
+``--executor slurm`` (``submitit-local``: the same on one machine) submits each run as a submitit job instead of a
+child process, with the study file's ``cluster:`` section (``partition``, ``time_min``, ``cpus_per_task``,
+``mem_gb``, ``gpus``, ``max_jobs``, ``max_resubmits``, ``signal_delay_s``, ``setup``, ``slurm_additional``; the
+command line overrides them). The jobs outlive the call: each is recorded in ``<root>/logs/<run>.job.json``, a call
+started again follows the jobs still queued or running, and a run whose job ended before it finished is resubmitted
+with ``resume=`` (:mod:`drs_torchrl.apps.study_cluster`, ``docs/cluster.md``).
 
 ``--report OUT`` reads the run directories (finished, interrupted or still running; a run without one
 keeps the record OUT already holds) and writes
@@ -909,7 +917,7 @@ def _main(argv: list[str] | None, held: contextlib.ExitStack) -> int:
             rec = read_jobs(root, r.name)
             if rec is None:
                 continue
-            if rec.get("given_up"):
+            if rec.get("given_up") and states[r.name] not in DONE:
                 print(f"drs-study: {r.name}: given up earlier ({rec['given_up']}); trying again", flush=True)
                 rec.update(given_up=None, count_from=len(rec["jobs"]))
                 write_jobs(root, r.name, rec)
@@ -977,6 +985,8 @@ def _main(argv: list[str] | None, held: contextlib.ExitStack) -> int:
     done = {r.name for r in every if study_state(root, record, r) in DONE}  # only this loop's runs change it
     try:
         while (pending or active) and stop["sig"] is None:
+            if jobs is not None:
+                jobs.refresh(list(active))
             for name, handle in list(active.items()):
                 if jobs is None:
                     if handle.poll() is None:

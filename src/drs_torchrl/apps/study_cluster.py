@@ -420,6 +420,11 @@ class SubmititRuns:
         job_id = rec["jobs"][-1]["job_id"]
         return None if ended(job_state(rec["executor"], rec["folder"], job_id)) else Submitted(job_id)
 
+    def refresh(self, names: list[str]) -> None:
+        """Ask Slurm once about the last jobs of runs ``names`` (:meth:`state` then answers from that)."""
+        recs = [read_jobs(self.root, n) for n in names]
+        slurm_states([(r["folder"], r["jobs"][-1]["job_id"]) for r in recs if r and r["executor"] == "slurm"])
+
     def state(self, name: str, sub: Submitted) -> str:
         rec = read_jobs(self.root, name) or {}
         return job_state(
