@@ -241,6 +241,19 @@ def test_a_slurm_study_submits_its_settings_and_gives_up_a_run_whose_jobs_die_wi
     assert "a: starting (slurm job 3)" in out and "slurm job 4" not in out
 
 
+def test_slurm_where_there_is_none_is_refused_in_one_line_and_cancel_says_when_nothing_runs(
+    tmp_path, monkeypatch, capsys
+):
+    f = write(tmp_path, {"root": str(tmp_path / "runs"), "runs": [{"name": "a", "args": ["total_frames=1000"]}]})
+    monkeypatch.setenv("PATH", str(tmp_path / "empty"))
+    assert main([str(f), "--executor", "slurm"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("drs-study: error: --executor slurm: no sbatch or srun here") and err.count("\n") == 1
+    assert not (tmp_path / "runs").exists()
+    assert main([str(f), "--cancel"]) == 0
+    assert f"drs-study: no job of {f} is queued or running" in capsys.readouterr().out
+
+
 def test_a_restarted_driver_follows_a_live_job_and_never_submits_a_second_one(tmp_path, monkeypatch, capsys):
     """The job file names a job Slurm still runs: --status shows it, another call follows it (no sbatch), a second
     driver on the same root is refused, and --cancel cancels it."""

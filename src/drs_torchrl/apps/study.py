@@ -87,6 +87,20 @@ from pathlib import Path
 
 import yaml
 
+from drs_torchrl.apps.study_cluster import (
+    EXECUTORS,
+    SubmititRuns,
+    Submitted,
+    describe_jobs,
+    ended,
+    failures_in_a_row,
+    job_file,
+    last_job_states,
+    live_job,
+    parse_cluster,
+    read_jobs,
+    write_jobs,
+)
 from drs_torchrl.console import at_least, console_script
 from drs_torchrl.errors import UserError
 
@@ -182,8 +196,6 @@ def load_study(path: str | Path) -> tuple[Path, list[Run]]:
 
 
 def _parse_cluster(path: Path, spec):
-    from drs_torchrl.apps.study_cluster import parse_cluster
-
     try:
         return parse_cluster(spec)
     except ValueError as exc:
@@ -284,8 +296,6 @@ def running_pid(root: Path, name: str) -> int | None:
 
 def _live_job(root: Path, name: str) -> str | None:
     """``"slurm job 1234"`` while a submitit job of a study call trains run ``name`` (its job file), else None."""
-    from drs_torchrl.apps.study_cluster import job_file, live_job
-
     return live_job(root, name) if job_file(root, name).is_file() else None
 
 
@@ -773,8 +783,6 @@ def _driver_lock(root: Path):
 
 
 def _cluster_args(p: argparse.ArgumentParser) -> None:
-    from drs_torchrl.apps.study_cluster import EXECUTORS
-
     g = p.add_argument_group("clusters (--executor submitit-local | slurm; the study file's cluster: section)")
     g.add_argument(
         "--executor",
@@ -798,16 +806,6 @@ def _cluster_args(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--cancel", action="store_true", help="cancel the study's queued and running jobs (each run saves) and exit"
     )
-
-
-def _jobs_note(root: Path, runs: list[Run], max_resubmits: int) -> dict[str, str]:
-    """``--status``'s job column: each run's last job (executor, id, state), for runs that have a job file."""
-    from drs_torchrl.apps.study_cluster import describe_jobs, last_job_states
-
-    return {
-        n: describe_jobs(rec, st, max_resubmits)
-        for n, (rec, st) in last_job_states(root, [r.name for r in runs]).items()
-    }
 
 
 @console_script("drs-study")
@@ -870,6 +868,7 @@ def _main(argv: list[str] | None, held: contextlib.ExitStack) -> int:
             return 2
         runs = [r for r in runs if r.name in a.only]
     want = {r.name: wanted_frames(r) for r in runs}
+    last_jobs = last_job_states(root, [r.name for r in runs])  # their states asked at once (Slurm: one query)
     states = {r.name: study_state(root, record, r) for r in runs}
     if a.report is not None:
         if a.report.resolve() == root.resolve() or root.resolve() in a.report.resolve().parents:
@@ -882,15 +881,21 @@ def _main(argv: list[str] | None, held: contextlib.ExitStack) -> int:
             print(path)
         return 0
     if a.status:
-        notes = _jobs_note(root, runs, cluster.max_resubmits)
+        notes = {n: describe_jobs(rec, st, cluster.max_resubmits) for n, (rec, st) in last_jobs.items()}
         for r in runs:
             print(f"{states[r.name]:>10}  {root / r.name}" + (f"  {notes[r.name]}" if r.name in notes else ""))
         print(work_left(root, record, runs, states, a.jobs))
         return 0
     jobs = None  # the submitit executors' driver side (None: the local executor, child processes)
+    missing = [c for c in ("sbatch", "srun") if shutil.which(c) is None]
+    if a.executor == "slurm" and missing and not a.check:
+        print(
+            f"drs-study: error: --executor slurm: no {' or '.join(missing)} here; run it where Slurm's commands are "
+            "(a login node), or try the study on this machine with --executor submitit-local",
+            file=sys.stderr,
+        )
+        return 2
     if a.executor != "local" or a.cancel:
-        from drs_torchrl.apps.study_cluster import SubmititRuns, Submitted, ended, read_jobs, write_jobs
-
         lock = _driver_lock(root)
         if isinstance(lock, str):
             what = "cancel their jobs" if a.cancel else "follow the same jobs"
@@ -902,12 +907,15 @@ def _main(argv: list[str] | None, held: contextlib.ExitStack) -> int:
             return 2
         held.callback(lock.close)
         if a.cancel:
+            cancelled = 0
             for r in runs:
                 rec = read_jobs(root, r.name)
-                if rec is not None:
-                    cancelled = SubmititRuns(rec["executor"], root, cluster).cancel(r.name)
-                    if cancelled:
-                        print(f"drs-study: {r.name}: {cancelled} cancelled (the run saves its state)", flush=True)
+                which = SubmititRuns(rec["executor"], root, cluster).cancel(r.name) if rec is not None else None
+                if which:
+                    cancelled += 1
+                    print(f"drs-study: {r.name}: {which} cancelled (the run saves its state)", flush=True)
+            if not cancelled:
+                print(f"drs-study: no job of {a.study} is queued or running", flush=True)
             return 0
         jobs = SubmititRuns(a.executor, root, cluster)
     busy = [r.name for r in runs if states[r.name] == "running"]
@@ -1046,6 +1054,8 @@ def _main(argv: list[str] | None, held: contextlib.ExitStack) -> int:
                     log.close()
                     extra = {"OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
                     active[r.name] = jobs.submit(r.name, cmd, root / "logs" / f"{r.name}.log", extra)
+                    with open(root / "logs" / f"{r.name}.log", "a") as log:
+                        log.write(f"# {a.executor} job {active[r.name].job_id} ({jobs.folder(r.name)})\n")
                     print(f"drs-study: {r.name}: {verb} ({a.executor} job {active[r.name].job_id})", flush=True)
                 pending.remove(r)
             if pending and not active:
@@ -1085,8 +1095,6 @@ def _main(argv: list[str] | None, held: contextlib.ExitStack) -> int:
 def _resubmit(jobs, name: str, rec: dict, max_resubmits: int, root: Path) -> bool:
     """Whether run ``name``, whose job ended before it finished, gets another job (it resumes from its saved state);
     no once ``max_resubmits`` jobs in a row ended without the run saving progress (a run that crashes at start)."""
-    from drs_torchrl.apps.study_cluster import failures_in_a_row
-
     fails = failures_in_a_row(rec)
     if fails > max_resubmits:
         last = rec["jobs"][-1]

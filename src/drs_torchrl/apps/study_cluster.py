@@ -21,6 +21,7 @@ import contextlib
 import functools
 import json
 import os
+import pickle
 import shlex
 import signal
 import subprocess
@@ -248,8 +249,6 @@ def _local_state(folder: str, job_id: str, job=None) -> str:
     if not result.is_file():
         return "DIED"
     try:
-        import pickle
-
         outcome = pickle.loads(result.read_bytes())[0]
     except Exception:
         return "FAILED"
