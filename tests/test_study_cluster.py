@@ -249,6 +249,7 @@ def test_slurm_where_there_is_none_is_refused_in_one_line_and_cancel_says_when_n
     assert main([str(f), "--executor", "slurm"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("drs-study: error: --executor slurm: no sbatch or srun here") and err.count("\n") == 1
+    assert main([str(f), "--executor", "slurm", "--check"]) == 0  # the configs are checked anywhere
     assert not (tmp_path / "runs").exists()
     assert main([str(f), "--cancel"]) == 0
     assert f"drs-study: no job of {f} is queued or running" in capsys.readouterr().out

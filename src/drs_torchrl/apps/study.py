@@ -895,7 +895,7 @@ def _main(argv: list[str] | None, held: contextlib.ExitStack) -> int:
             file=sys.stderr,
         )
         return 2
-    if a.executor != "local" or a.cancel:
+    if (a.executor != "local" and not a.check) or a.cancel:
         lock = _driver_lock(root)
         if isinstance(lock, str):
             what = "cancel their jobs" if a.cancel else "follow the same jobs"
