@@ -9,10 +9,10 @@ log() { printf '[slurm-local] %s\n' "$*"; }
 die() { log "error: $*"; for f in /var/log/slurm/slurmctld.log /var/log/slurm/slurmd.log; do
   [ -f "$f" ] && { log "--- tail of $f"; tail -n 20 "$f"; }; done; exit 1; }
 
-if [ "${1:-}" = stop ]; then
-  for d in slurmd slurmctld munged; do
-    pid=$(pgrep -x "$d" || true)
-    [ -n "$pid" ] && kill $pid && log "stopped $d ($pid)"
+if [ "${1:-}" = stop ]; then   # the daemons this script started, by their pid files
+  for f in /run/slurmd.pid /run/slurmctld.pid /run/munge/munged.pid; do
+    pid=$(cat "$f" 2>/dev/null || true)
+    [ -n "$pid" ] && kill "$pid" 2>/dev/null && log "stopped $(basename "$f" .pid) ($pid)"
   done
   exit 0
 fi
