@@ -8,6 +8,7 @@ what has finished, so the same command is re-run across sessions until the study
     drs-study results/precision/study.yaml --status          # what is done, what is left
     drs-study results/precision/study.yaml --check           # every run's config composed and validated, nothing run
     drs-study results/precision/study.yaml --report results/precision   # the record to commit (below)
+    drs-study results/precision/study.yaml --executor slurm   # each run a Slurm job through submitit (below)
 
 Study file::
 
@@ -37,6 +38,13 @@ runs). SIGINT/SIGTERM to the study stop every run at its next batch boundary (ea
 saves its training state) and the study exits 130/143; re-invoke it to continue.
 (Hydra's multirun launchers start every job afresh and know neither resuming nor skipping.)
 
+``--executor slurm`` (``submitit-local``: the same on one machine) submits each run as a submitit job instead of a
+child process, with the study file's ``cluster:`` section (``partition``, ``time_min``, ``cpus_per_task``,
+``mem_gb``, ``gpus``, ``max_jobs``, ``max_resubmits``, ``signal_delay_s``, ``setup``, ``slurm_additional``; the
+command line overrides them). The jobs outlive the call: each is recorded in ``<root>/logs/<run>.job.json``, a call
+started again follows the jobs still queued or running, and a run whose job ended before it finished is resubmitted
+with ``resume=`` (:mod:`drs_torchrl.apps.study_cluster`, ``docs/cluster.md``).
+
 ``--report OUT`` reads the run directories (finished, interrupted or still running; a run without one
 keeps the record OUT already holds) and writes
 what a results folder commits, never training states: ``OUT/run_files/<run>/`` (``train.csv``,
@@ -63,6 +71,7 @@ refuses a file whose hash differs. ``config.yaml`` stays as the run composed it.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import itertools
 import json
 import os
@@ -78,6 +87,20 @@ from pathlib import Path
 
 import yaml
 
+from drs_torchrl.apps.study_cluster import (
+    EXECUTORS,
+    SubmititRuns,
+    Submitted,
+    describe_jobs,
+    ended,
+    failures_in_a_row,
+    job_file,
+    last_job_states,
+    live_job,
+    parse_cluster,
+    read_jobs,
+    write_jobs,
+)
 from drs_torchrl.console import at_least, console_script
 from drs_torchrl.errors import UserError
 
@@ -118,7 +141,7 @@ def load_study(path: str | Path) -> tuple[Path, list[Run]]:
         raise StudyError(f"{path} is not a YAML study file ({type(exc).__name__})") from None
     if not isinstance(spec, dict) or "root" not in spec:
         raise StudyError(f"{path}: a study file is a mapping with at least 'root' and 'grid' or 'runs'")
-    allowed = ("root", "app", "common", "grid", "runs", "description", "record", "figures")
+    allowed = ("root", "app", "common", "grid", "runs", "description", "record", "figures", "cluster")
     unknown = set(spec) - set(allowed)
     if unknown:
         raise StudyError(f"{path}: unknown keys {sorted(unknown)} (allowed: {', '.join(allowed)})")
@@ -168,7 +191,20 @@ def load_study(path: str | Path) -> tuple[Path, list[Run]]:
             if ref not in r.needs:
                 raise StudyError(f"{path}: run {r.name} uses <{kind}:{ref}> but does not list {ref} in its needs")
     _parse_figures(path, spec.get("figures"), runs)
+    _parse_cluster(path, spec.get("cluster"))
     return root, runs
+
+
+def _parse_cluster(path: Path, spec):
+    try:
+        return parse_cluster(spec)
+    except ValueError as exc:
+        raise StudyError(f"{path}: cluster: {exc}") from None
+
+
+def load_cluster(path: str | Path):
+    """The study file's ``cluster:`` section (:class:`~drs_torchrl.apps.study_cluster.Cluster`; defaults if absent)."""
+    return _parse_cluster(Path(path), (yaml.safe_load(Path(path).read_text()) or {}).get("cluster"))
 
 
 def _listed(path: Path, what: str, value) -> list:
@@ -258,29 +294,37 @@ def running_pid(root: Path, name: str) -> int | None:
     return pid if str(root / name) in cmdline.replace("\0", " ") else None
 
 
+def _live_job(root: Path, name: str) -> str | None:
+    """``"slurm job 1234"`` while a submitit job of a study call trains run ``name`` (its job file), else None."""
+    return live_job(root, name) if job_file(root, name).is_file() else None
+
+
+def _locked(run_dir: Path) -> bool:
+    """Some process holds the run directory's lock (it writes the run)."""
+    from drs_torchrl.rundir import RunDirBusyError, lock_run_dir, unlock_run_dir
+
+    if not run_dir.is_dir():
+        return False
+    try:
+        lock_run_dir(run_dir)
+    except RunDirBusyError:
+        return True
+    unlock_run_dir(run_dir)
+    return False
+
+
 def _written_elsewhere(root: Path, name: str) -> bool:
     """Run ``name`` is trained by a live process now: one a study call started (its pid file), or any process that
     holds the run directory's lock (a ``drs-learn`` started by hand there). Asked just before a run is (re)started
     or a broken one deleted, since another call may have started it after this one read the states."""
-    from drs_torchrl.rundir import RunDirBusyError, lock_run_dir, unlock_run_dir
-
-    if running_pid(root, name) is not None:
-        return True
-    if not (root / name).is_dir():
-        return False
-    try:
-        lock_run_dir(root / name)
-    except RunDirBusyError:
-        return True
-    unlock_run_dir(root / name)
-    return False
+    return running_pid(root, name) is not None or _live_job(root, name) is not None or _locked(root / name)
 
 
 def study_state(root: Path, record: Path | None, run: Run) -> str:
     """:func:`run_state` of the run's directory, ``running`` while another study call trains it; where
     there is none, ``recorded`` if the committed record says the run finished (its state is gone: a fresh
     checkout), else ``new``."""
-    if running_pid(root, run.name) is not None:
+    if running_pid(root, run.name) is not None or _live_job(root, run.name) is not None:
         return "running"
     state = run_state(root / run.name, wanted_frames(run))
     if (
@@ -717,8 +761,60 @@ def _env_split(run_dir: Path) -> str:
     return str((cfg.get("env") or {}).get("split") or "-")
 
 
+def _driver_lock(root: Path):
+    """The one submitit driver of a run root: ``ROOT/logs/driver.lock``, open and flock-ed (held until it is
+    closed), or, where another process holds it, that process's pid (a string)."""
+    import fcntl
+
+    (root / "logs").mkdir(parents=True, exist_ok=True)
+    f = open(root / "logs" / "driver.lock", "a+")
+    try:
+        fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        f.seek(0)
+        holder = f.read().strip() or "unknown"
+        f.close()
+        return holder
+    f.seek(0)
+    f.truncate()
+    f.write(f"{os.getpid()}\n")
+    f.flush()
+    return f
+
+
+def _cluster_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("clusters (--executor submitit-local | slurm; the study file's cluster: section)")
+    g.add_argument(
+        "--executor",
+        choices=EXECUTORS,
+        default="local",
+        help="local: child processes of this call (default); submitit-local: submitit jobs on this machine; "
+        "slurm: Slurm jobs through submitit. Jobs outlive this call: run it again to follow them",
+    )
+    g.add_argument("--partition", default=None, help="Slurm partition (cluster: partition)")
+    g.add_argument("--time-min", type=at_least(1), default=None, help="each job's time limit in minutes")
+    g.add_argument("--cpus-per-task", type=at_least(1), default=None, help="CPUs per job")
+    g.add_argument("--mem-gb", type=float, default=None, help="memory per job in GB")
+    g.add_argument("--gpus", type=at_least(0), default=None, help="GPUs per job; > 0 runs each run with device=cuda")
+    g.add_argument("--max-jobs", type=at_least(1), default=None, help="jobs queued or running at once")
+    g.add_argument(
+        "--max-resubmits",
+        type=at_least(0),
+        default=None,
+        help="jobs in a row that may end without the run saving progress before it is given up (default 3)",
+    )
+    g.add_argument(
+        "--cancel", action="store_true", help="cancel the study's queued and running jobs (each run saves) and exit"
+    )
+
+
 @console_script("drs-study")
 def main(argv: list[str] | None = None) -> int:
+    with contextlib.ExitStack() as held:  # the driver lock of a submitit call, released on return
+        return _main(argv, held)
+
+
+def _main(argv: list[str] | None, held: contextlib.ExitStack) -> int:
     p = argparse.ArgumentParser(prog="drs-study", description=__doc__.split("\n")[0])
     p.add_argument("study", help="study YAML file")
     p.add_argument(
@@ -728,7 +824,12 @@ def main(argv: list[str] | None = None) -> int:
         default=2,
         help="runs side by side (default 2: one per core of a 2-core machine)",
     )
-    p.add_argument("--threads", type=at_least(1), default=1, help="torch threads per run (default 1)")
+    p.add_argument(
+        "--threads",
+        type=at_least(1),
+        default=None,
+        help="torch threads per run (default 1; --executor slurm: the study's cpus_per_task)",
+    )
     p.add_argument("--status", action="store_true", help="print each run's state and exit")
     p.add_argument("--only", nargs="*", default=None, help="run only these run names")
     p.add_argument(
@@ -743,14 +844,23 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="write the study's record (run files, status.md, drs-compare figures) into OUT and exit",
     )
+    _cluster_args(p)
     a = p.parse_args(argv)
     try:
         root, runs = load_study(a.study)
         record = load_record(a.study)
+        cluster = load_cluster(a.study)
         every = list(runs)  # --only narrows what runs, not what counts as done
     except StudyError as exc:
         print(f"drs-study: error: {exc}", file=sys.stderr)
         return 2
+    for key in ("partition", "time_min", "cpus_per_task", "mem_gb", "gpus", "max_jobs", "max_resubmits"):
+        if getattr(a, key) is not None:
+            setattr(cluster, key, getattr(a, key))
+    if a.mem_gb is not None and a.mem_gb <= 0:
+        print(f"drs-study: error: --mem-gb must be positive, got {a.mem_gb}", file=sys.stderr)
+        return 2
+    threads = a.threads or (cluster.cpus_per_task if a.executor == "slurm" else None) or 1
     if a.only is not None:
         unknown = [n for n in a.only if n not in {r.name for r in runs}]
         if unknown:
@@ -758,6 +868,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         runs = [r for r in runs if r.name in a.only]
     want = {r.name: wanted_frames(r) for r in runs}
+    last_jobs = last_job_states(root, [r.name for r in runs])  # their states asked at once (Slurm: one query)
     states = {r.name: study_state(root, record, r) for r in runs}
     if a.report is not None:
         if a.report.resolve() == root.resolve() or root.resolve() in a.report.resolve().parents:
@@ -770,14 +881,76 @@ def main(argv: list[str] | None = None) -> int:
             print(path)
         return 0
     if a.status:
+        notes = {n: describe_jobs(rec, st, cluster.max_resubmits) for n, (rec, st) in last_jobs.items()}
         for r in runs:
-            print(f"{states[r.name]:>10}  {root / r.name}")
+            print(f"{states[r.name]:>10}  {root / r.name}" + (f"  {notes[r.name]}" if r.name in notes else ""))
         print(work_left(root, record, runs, states, a.jobs))
         return 0
+    jobs = None  # the submitit executors' driver side (None: the local executor, child processes)
+    missing = [c for c in ("sbatch", "srun") if shutil.which(c) is None]
+    if a.executor == "slurm" and missing and not a.check:
+        print(
+            f"drs-study: error: --executor slurm: no {' or '.join(missing)} here; run it where Slurm's commands are "
+            "(a login node), or try the study on this machine with --executor submitit-local",
+            file=sys.stderr,
+        )
+        return 2
+    if (a.executor != "local" and not a.check) or a.cancel:
+        lock = _driver_lock(root)
+        if isinstance(lock, str):
+            what = "cancel their jobs" if a.cancel else "follow the same jobs"
+            print(
+                f"drs-study: error: another drs-study call (pid {lock}) follows the jobs of {root}; stop it first "
+                f"(Ctrl-C or kill {lock}: its jobs keep running), then {what}",
+                file=sys.stderr,
+            )
+            return 2
+        held.callback(lock.close)
+        if a.cancel:
+            cancelled = 0
+            for r in runs:
+                rec = read_jobs(root, r.name)
+                which = SubmititRuns(rec["executor"], root, cluster).cancel(r.name) if rec is not None else None
+                if which:
+                    cancelled += 1
+                    print(f"drs-study: {r.name}: {which} cancelled (the run saves its state)", flush=True)
+            if not cancelled:
+                print(f"drs-study: no job of {a.study} is queued or running", flush=True)
+            return 0
+        jobs = SubmititRuns(a.executor, root, cluster)
     busy = [r.name for r in runs if states[r.name] == "running"]
+    active: dict = {}  # run name -> its child process (local) or the job followed (submitit)
+    if jobs is not None:  # a driver started again: follow the jobs still queued or running, note those that ended
+        for r in runs:
+            rec = read_jobs(root, r.name)
+            if rec is None:
+                continue
+            if rec.get("given_up") and states[r.name] not in DONE:
+                print(f"drs-study: {r.name}: given up earlier ({rec['given_up']}); trying again", flush=True)
+                rec.update(given_up=None, count_from=len(rec["jobs"]))
+                write_jobs(root, r.name, rec)
+            last = rec["jobs"][-1]
+            if "ended" in last:
+                continue
+            sub = jobs.attach(r.name)
+            if sub is not None or _locked(root / r.name):  # alive, or ended while its run still saves: wait for it
+                active[r.name] = sub or Submitted(last["job_id"])
+                print(f"drs-study: {r.name}: following {rec['executor']} job {last['job_id']}", flush=True)
+            else:
+                state = jobs.state(r.name, Submitted(last["job_id"]))
+                jobs.close(r.name, state)
+                print(
+                    f"drs-study: {r.name}: {rec['executor']} job {last['job_id']} ended ({state}) while no study call "
+                    f"followed it, {run_state(root / r.name, want[r.name])}",
+                    flush=True,
+                )
+        states.update({r.name: study_state(root, record, r) for r in runs if r.name not in active})
+        busy = [r.name for r in runs if states[r.name] == "running" and r.name not in active]
     for name in busy:
-        print(f"drs-study: {name}: being trained by another call (pid {running_pid(root, name)}), skipped", flush=True)
-    pending = [r for r in runs if states[r.name] not in (*DONE, "running")]
+        pid = running_pid(root, name)
+        who = f"pid {pid}" if pid is not None else _live_job(root, name)
+        print(f"drs-study: {name}: being trained by another call ({who}), skipped", flush=True)
+    pending = [r for r in runs if states[r.name] not in (*DONE, "running") and r.name not in active]
     problems = {r.name: check_run(r, root, record) for r in (runs if a.check else pending)}
     if a.check:
         for r in runs:
@@ -801,32 +974,52 @@ def main(argv: list[str] | None = None) -> int:
     for r in runs:
         if states[r.name] in DONE:
             print(f"drs-study: {r.name}: {states[r.name]}, skipped", flush=True)
-    active: dict[str, subprocess.Popen] = {}
+    by_name = {r.name: r for r in runs}
     failed: list[str] = []
     stop = {"sig": None}
+    if jobs is None:
+        at_once = a.jobs
+    else:
+        at_once = cluster.max_jobs or (a.jobs if a.executor == "submitit-local" else len(runs))
 
     def on_signal(signum, frame):
         stop["sig"] = signum
-        for proc in active.values():
-            proc.send_signal(signal.SIGTERM)  # each run saves at its next batch boundary
+        if jobs is None:
+            for proc in active.values():
+                proc.send_signal(signal.SIGTERM)  # each run saves at its next batch boundary
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    env = dict(os.environ, OMP_NUM_THREADS=str(a.threads), MKL_NUM_THREADS=str(a.threads))
+    env = dict(os.environ, OMP_NUM_THREADS=str(threads), MKL_NUM_THREADS=str(threads))
     done = {r.name for r in every if study_state(root, record, r) in DONE}  # only this loop's runs change it
     try:
         while (pending or active) and stop["sig"] is None:
-            for name, proc in list(active.items()):
-                if proc.poll() is not None:
+            if jobs is not None:
+                jobs.refresh(list(active))
+            for name, handle in list(active.items()):
+                if jobs is None:
+                    if handle.poll() is None:
+                        continue
                     del active[name]
                     pid_file(root, name).unlink(missing_ok=True)
-                    state = run_state(root / name, want[name])
-                    print(f"drs-study: {name}: exit {proc.returncode}, {state}", flush=True)
-                    if state == "finished":
-                        done.add(name)
-                    else:
-                        failed.append(name)
+                    how, rec = f"exit {handle.returncode}", None
+                else:
+                    job_state = jobs.state(name, handle)
+                    if not ended(job_state) or _locked(root / name):  # a job ended while its run saves: wait
+                        continue
+                    del active[name]
+                    handle.job = None  # submitit's job object: not left for the interpreter's shutdown
+                    rec = jobs.close(name, job_state)
+                    how = f"{rec['executor']} job {handle.job_id} {job_state}"
+                state = run_state(root / name, want[name])
+                print(f"drs-study: {name}: {how}, {state}", flush=True)
+                if state == "finished":
+                    done.add(name)
+                elif jobs is not None and _resubmit(jobs, name, rec, cluster.max_resubmits, root):
+                    pending.insert(0, by_name[name])
+                else:
+                    failed.append(name)
             for r in list(pending):
-                if len(active) >= a.jobs:
+                if len(active) >= at_once:
                     break
                 if any(n in failed for n in r.needs):
                     pending.remove(r)
@@ -846,25 +1039,47 @@ def main(argv: list[str] | None = None) -> int:
                     shutil.rmtree(run_dir)
                 cmd = command(r, run_dir, state, resolve_args(r, root, record))
                 if state != "resumable" and not any(c.startswith("torch_threads=") for c in cmd):
-                    cmd.append(f"torch_threads={a.threads}")  # a resumed run keeps its own
+                    cmd.append(f"torch_threads={threads}")  # a resumed run keeps its own
+                if jobs is not None and cluster.gpus:
+                    cmd.append("device=cuda")
                 log = open(root / "logs" / f"{r.name}.log", "a")
                 log.write(f"\n# {time.strftime('%Y-%m-%d %H:%M:%S')} {' '.join(cmd)}\n")
                 log.flush()
-                print(f"drs-study: {r.name}: {'resuming' if state == 'resumable' else 'starting'}", flush=True)
-                active[r.name] = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env)
-                pid_file(root, r.name).write_text(f"{active[r.name].pid}\n")
+                verb = "resuming" if state == "resumable" else "starting"
+                if jobs is None:
+                    print(f"drs-study: {r.name}: {verb}", flush=True)
+                    active[r.name] = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env)
+                    pid_file(root, r.name).write_text(f"{active[r.name].pid}\n")
+                else:
+                    log.close()
+                    extra = {"OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
+                    active[r.name] = jobs.submit(r.name, cmd, root / "logs" / f"{r.name}.log", extra)
+                    with open(root / "logs" / f"{r.name}.log", "a") as log:
+                        log.write(f"# {a.executor} job {active[r.name].job_id} ({jobs.folder(r.name)})\n")
+                    print(f"drs-study: {r.name}: {verb} ({a.executor} job {active[r.name].job_id})", flush=True)
                 pending.remove(r)
             if pending and not active:
                 waiting = [r.name for r in pending]
                 print(f"drs-study: error: {waiting} wait for runs that are not in this invocation", file=sys.stderr)
                 return 2
             time.sleep(2)
-        for proc in active.values():
-            proc.wait()
+        if jobs is None:
+            for proc in active.values():
+                proc.wait()
     finally:
+        for handle in active.values() if jobs is not None else ():
+            handle.job = None
         for s, h in previous.items():
             signal.signal(s, h)
     if stop["sig"] is not None:
+        if jobs is not None:
+            left = ", ".join(f"{n} (job {h.job_id})" for n, h in active.items()) or "none"
+            print(
+                f"drs-study: stopped; the jobs keep going: {left}. Re-run the same command to follow them "
+                "(--status shows them, --cancel stops them).",
+                flush=True,
+            )
+            return 128 + stop["sig"]
         print("drs-study: stopped; every run saved its state. Re-run the same command to continue.", flush=True)
         return 128 + stop["sig"]
     if failed:
@@ -875,6 +1090,23 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     print(f"drs-study: all {len(runs)} runs finished in {root}", flush=True)
     return 0
+
+
+def _resubmit(jobs, name: str, rec: dict, max_resubmits: int, root: Path) -> bool:
+    """Whether run ``name``, whose job ended before it finished, gets another job (it resumes from its saved state);
+    no once ``max_resubmits`` jobs in a row ended without the run saving progress (a run that crashes at start)."""
+    fails = failures_in_a_row(rec)
+    if fails > max_resubmits:
+        last = rec["jobs"][-1]
+        why = (
+            f"{fails} jobs in a row ended without the run saving progress (the last: {last['job_id']} {last['ended']})"
+        )
+        jobs.give_up(name, why)
+        print(f"drs-study: {name}: given up: {why}; see {root / 'logs' / (name + '.log')}", flush=True)
+        return False
+    note = f" ({fails} of {max_resubmits} resubmissions without progress used)" if fails else ""
+    print(f"drs-study: {name}: its job ended before the run finished: resubmitting{note}", flush=True)
+    return True
 
 
 if __name__ == "__main__":
