@@ -157,6 +157,7 @@ def bench_components(
         out["sac_update_ms"] = per_call_ms(tr.updater.step)
         out["sac_update_ms_by_precision"] = {"fp32": out["sac_update_ms"]}
         out["sac_update_gflop"] = sac_update_gflop(tr)
+        out["threads"] = torch.get_num_threads()  # the update's ms above were measured at this many threads
         sample = tr.updater.replay.sample()
         nxt = sample.get("next")
         out["reward_recompute_ms"] = per_call_ms(lambda: tr.learned.reward(nxt), n=200)
@@ -290,6 +291,53 @@ def roofline(res: dict) -> list[dict]:
     return out
 
 
+def floor(res: dict) -> list[dict]:
+    """How far each measured phase-1 row is from what this machine allows at its own settings (issue 64's goals).
+
+    * the update: its measured ms (``components``, eager, at the threads it ran with) against its GEMM floor, the
+      matrix-product GFLOPs of one update at the measured GEMM rate for that precision and thread count;
+    * the loop: a ``learn`` row's env steps/s against its limit, ``min(raw simulator, compute bound)`` for a collector
+      in the background (simulation beside the learner) and ``1 / (1/raw + 1/compute bound)`` in-process (the two
+      take turns), where the compute bound is ``1 / (utd * floor)`` at the learner's threads and precision.
+    Goals: the update at most 1.5x its floor; the loop at least 0.7 of its limit.
+    """
+    raw = res["raw_sim_steps_per_s"]
+    dtypes = {"fp32": torch.float32, "bf16": torch.bfloat16}
+    comps = {c["algo"]: c for c in res.get("components", [])}
+    rate: dict[tuple, float] = {}
+
+    def floor_ms(c: dict, prec: str, threads: int) -> float:
+        key = (c["batch_size"], c.get("width", 256), threads, prec)
+        if key not in rate:
+            rate[key] = gemm_gflops(c["batch_size"], c.get("width", 256), threads, dtype=dtypes[prec])
+        return c["sac_update_gflop"] / rate[key] * 1e3
+
+    out = []
+    for c in comps.values():
+        threads = int(c.get("threads") or res.get("machine", {}).get("torch_threads") or 1)
+        for prec, measured in (c.get("sac_update_ms_by_precision") or {"fp32": c["sac_update_ms"]}).items():
+            f = floor_ms(c, prec, threads)
+            out.append(
+                {"what": "update", "algo": c["algo"], "precision": prec, "threads": threads, "measured_ms": measured,
+                 "floor_ms": f, "over_floor": measured / f}
+            )  # fmt: skip
+    for r in res.get("learn", []):
+        c = comps.get(r["algo"])
+        if c is None or r.get("precision", "fp32") not in dtypes:
+            continue
+        threads = int(r.get("learner_threads") or res.get("machine", {}).get("torch_threads") or 1)
+        compute = 1.0 / (r["utd"] * floor_ms(c, r.get("precision", "fp32"), threads) / 1e3)
+        background = not str(r["collector"]).startswith("inproc")
+        limit = min(raw, compute) if background else 1.0 / (1.0 / raw + 1.0 / compute)
+        out.append(
+            {"what": "loop", "algo": r["algo"], "precision": r.get("precision", "fp32"), "threads": threads,
+             "collector": r["collector"], "env_steps_per_s": r["env_steps_per_s"], "raw_sim_steps_per_s": raw,
+             "compute_bound_steps_per_s": compute, "limit_steps_per_s": limit,
+             "of_limit": r["env_steps_per_s"] / limit}
+        )  # fmt: skip
+    return out
+
+
 COLLECTORS = {
     "inproc": "torchrl.collectors.Collector",
     "background": "torchrl.collectors.AsyncCollector",
@@ -339,6 +387,7 @@ def bench_learn(
         tr = Run(cfg, "learn", d)
         # fill the warm-up without timing it
         tr.run()
+        learner_threads = torch.get_num_threads()  # what the run set for its learner (a background collector: fewer)
         import csv
 
         rows = list(csv.DictReader(open(Path(d) / "train.csv")))
@@ -355,6 +404,7 @@ def bench_learn(
         "env_steps_per_s": float(r["env_steps_per_s"]),
         "updates_per_s": float(r["updates_per_s"]),
         "collect_steps_per_s_within_learning": float(r["collect_steps_per_s"]),
+        "learner_threads": learner_threads,
     }
 
 
@@ -622,6 +672,7 @@ def main(argv: list[str] | None = None) -> int:
             )
         print("roofline (GEMM rate at the update's shapes) ...", flush=True)
         res["roofline"] = roofline(res)
+        res["floor"] = floor(res)
     if a.checkpoint:
         print(f"checkpoint of a {a.checkpoint}-transition run ...", flush=True)
         res["checkpoint"] = c = bench_checkpoint(a.checkpoint)
@@ -720,6 +771,28 @@ def render_markdown(res: dict) -> str:
                 f"{r['update_ms_measured']:.1f} | {r['env_steps_per_s_bound']:.1f} | "
                 f"{r.get('plain_env_steps_per_s', float('nan')):.1f} | {r.get('bound_over_plain', float('nan')):.2f}x |"
             )
+    if res.get("floor"):
+        lines += [
+            "",
+            "Distance from the floor (goals: the update at most 1.5x its GEMM floor; the loop at least 0.7 of "
+            "min(raw simulator, compute bound), or of their harmonic sum for the in-process collector):",
+            "",
+            "| row | precision | threads | measured | floor / limit | ratio |",
+            "|---|---|---|---|---|---|",
+        ]
+        for f in res["floor"]:
+            if f["what"] == "update":
+                lines.append(
+                    f"| SAC update, {f['algo']} | {f['precision']} | {f['threads']} | {f['measured_ms']:.2f} ms | "
+                    f"{f['floor_ms']:.2f} ms (GEMM floor) | {f['over_floor']:.2f}x the floor |"
+                )
+            else:
+                lines.append(
+                    f"| phase-1 loop, {f['algo']}, {f['collector']} collector | {f['precision']} | {f['threads']} | "
+                    f"{f['env_steps_per_s']:.1f} env steps/s | {f['limit_steps_per_s']:.1f} (raw "
+                    f"{f['raw_sim_steps_per_s']:.0f}, compute bound {f['compute_bound_steps_per_s']:.0f}) | "
+                    f"{f['of_limit']:.2f} of the limit |"
+                )
     if "checkpoint" in res:
         c = res["checkpoint"]
         lines += [
