@@ -101,3 +101,44 @@ def test_an_unknown_normalisation_is_a_config_error():
 
     with pytest.raises(ConfigError, match="unknown normalisation 'batch'"):
         updater("sac_cpu", "algo.critic_norm=batch")
+
+
+def test_crossq_has_no_targets_delays_the_actor_and_acts_on_running_statistics(tmp_path):
+    from torchrl.modules import BatchRenorm1d
+
+    cfg, u = updater("crossq")
+    assert cfg.algo.name == "crossq" and float(cfg.algo.utd) == 1.0 and u.target_updater is None
+    assert type(u.loss).__name__ == "CrossQLoss"
+    brn = [m for m in u.actor.modules() if isinstance(m, BatchRenorm1d)]
+    assert len(brn) == 2 and sum(isinstance(m, BatchRenorm1d) for m in u.qvalue.modules()) == 2
+    actor_params = lambda: [p.detach().clone() for p in u.loss.actor_network_params.values(True, True)]  # noqa: E731
+    critic_params = lambda: [p.detach().clone() for p in u.loss.qvalue_network_params.values(True, True)]  # noqa: E731
+    changed = lambda a, b: any(not torch.equal(x, y) for x, y in zip(a, b))  # noqa: E731
+    moved = []
+    for _ in range(4):  # updates 0 and 3 train the actor (policy_delay 3); every update trains the critics
+        a0, c0 = actor_params(), critic_params()
+        u.step()
+        moved.append((changed(a0, actor_params()), changed(c0, critic_params())))
+        assert not u.actor.training and not u.loss.qvalue_network.training  # acting (collection, evaluation) on running statistics
+    assert [m[1] for m in moved] == [True] * 4
+    # the actor's running statistics move on every update (the loss samples next actions with it) ...
+    assert [m[0] for m in moved][1:3] == [True, True]
+    # ... but its weights only on updates 0 and 3
+    w = lambda: [p.detach().clone() for n, p in u.actor.named_parameters()]  # noqa: E731
+    before = w()
+    u.step()  # update 4: no actor step
+    assert not changed(before, w())
+    u.step()  # update 5: no actor step
+    u.step()  # update 6: the actor steps
+    assert changed(before, w())
+    # the module that acts holds the running statistics the loss trains
+    assert any(float(m.running_mean.abs().sum()) > 0 for m in brn)
+    ck = {"format": "drs-torchrl/policy", "family": "pick_cube", **u.policy_checkpoint()}
+    torch.save(ck, tmp_path / "policy.pt")
+    actor, _ = load_policy(tmp_path / "policy.pt", Env.observation_spec, Env.action_spec, family="pick_cube")
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    td = TensorDict({"observation": torch.randn(5, OBS), "stage_indicators": torch.zeros(5, 3)}, [5])
+    with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
+        assert torch.allclose(actor(td.clone())["action"], u.actor(td.clone())["action"])
+    assert u.init_from(ck) == []

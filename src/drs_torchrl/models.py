@@ -8,7 +8,7 @@ from pathlib import Path
 import torch
 from tensordict.nn import NormalParamExtractor, TensorDictModule, TensorDictSequential
 from torch import nn
-from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
+from torchrl.modules import MLP, BatchRenorm1d, ProbabilisticActor, TanhNormal, ValueOperator
 
 from drs_torchrl.errors import ConfigError, UserError
 from drs_torchrl.safe_files import UnsafeFileError, torch_load
@@ -32,15 +32,32 @@ def _in_features(observation_spec, keys: Sequence[str]) -> int:
     return sum(int(observation_spec[k].shape[-1]) for k in keys)
 
 
-NORMS = (None, "layer")
+NORMS = (None, "layer", "batch_renorm")
+
+
+class AnyBatchRenorm(BatchRenorm1d):
+    """TorchRL's ``BatchRenorm1d`` over the last dimension of inputs of any batch shape. Own subclass: TorchRL's
+    refuses an unbatched input, which is what a single env's policy call passes; statistics are per feature anyway."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if x.dim() == 2:
+            return super().forward(x)
+        return super().forward(x.reshape(-1, x.shape[-1])).reshape(x.shape)
 
 
 def _norm(kind: str | None, hidden: Sequence[int]) -> dict:
     """TorchRL ``MLP`` arguments for a normalisation after each hidden layer's linear map (before its activation)."""
     if kind not in NORMS:
-        raise ConfigError(f"algo.critic_norm / algo.actor_norm: unknown normalisation {kind!r}; choose null or layer")
+        raise ConfigError(
+            f"algo.critic_norm / algo.actor_norm: unknown normalisation {kind!r}; choose null, layer or batch_renorm"
+        )
     if kind is None:
         return {}
+    if kind == "batch_renorm":  # CrossQ (Bhatt et al., 2024): running statistics after a warm-up, momentum 0.01
+        return {
+            "norm_class": AnyBatchRenorm,
+            "norm_kwargs": [{"num_features": int(w), "warmup_steps": 100_000} for w in hidden],
+        }
     return {"norm_class": nn.LayerNorm, "norm_kwargs": [{"normalized_shape": int(w)} for w in hidden]}
 
 
@@ -62,7 +79,8 @@ def make_sac_modules(
     ``device`` (default: the spec's device). ``return_log_prob``: the actor also writes its actions' log-probability
     (PPO's importance ratio); the parameters are the same either way, so a policy checkpoint loads into both.
     ``critic_norm`` / ``actor_norm``: ``"layer"`` puts a LayerNorm after every hidden layer's linear map (RLPD, BRO,
-    SimBa: the critic's values stay bounded at high update ratios); None: the paper's plain MLPs.
+    SimBa: the critic's values stay bounded at high update ratios), ``"batch_renorm"`` a BatchRenorm1d (CrossQ; the
+    modules then act in eval mode, on running statistics); None: the paper's plain MLPs.
     """
     in_keys = list(in_keys)
     n_obs = _in_features(observation_spec, in_keys)
@@ -105,6 +123,7 @@ def make_sac_modules(
     actor, qvalue = actor.to(device), qvalue.to(device)
     with torch.no_grad():
         td = observation_spec.zero().to(device)
+        actor.eval(), qvalue.eval()  # batch statistics are the loss's business: modules act on running ones
         actor(td)
         qvalue(td)
     return actor, qvalue

@@ -53,9 +53,15 @@ class SACUpdater(Updater):
         compile_kwargs: dict | None = None,
         critic_norm: str | None = None,
         actor_norm: str | None = None,
+        policy_delay: int = 1,
     ):
         super().__init__()
         self.critic_norm, self.actor_norm = critic_norm, actor_norm
+        self.policy_delay = int(policy_delay)
+        if self.policy_delay < 1:
+            raise ValueError(f"algo.policy_delay must be >= 1, got {policy_delay}")
+        # batch-normalised networks learn on batch statistics and act on running ones (CrossQ)
+        self._batch_stats = "batch_renorm" in (critic_norm, actor_norm)
         self.actor, self.qvalue, self.loss, self.target_updater = actor, qvalue, loss, target_updater
         self.policy = self.eval_policy = actor
         self.optimizers = optimizers
@@ -102,15 +108,26 @@ class SACUpdater(Updater):
     def step(self) -> tuple[TensorDict, torch.Tensor]:
         """One SAC update on a fresh batch; returns its statistics and the rewards it trained on."""
         sample = self.sample()  # the learned reward is recomputed here, in fp32
-        with autocast(self.precision, self.device):
-            out = self._loss_fn(sample)
-        total = out["loss_actor"] + out["loss_qvalue"] + out["loss_alpha"]
+        # the loss's networks are not its registered children (TorchRL keeps their parameters apart): set their modes
+        nets = (self.loss.actor_network, self.loss.qvalue_network) if self._batch_stats else ()
+        for net in nets:
+            net.train()
+        try:
+            with autocast(self.precision, self.device):
+                out = self._loss_fn(sample)
+        finally:
+            for net in nets:
+                net.eval()
+        # the actor and alpha learn every policy_delay-th update (TD3, CrossQ), the critics every update
+        policy_step = self.updates % self.policy_delay == 0
+        total = out["loss_qvalue"] + (out["loss_actor"] + out["loss_alpha"] if policy_step else 0.0)
         check_finite("SAC loss", total.detach())
-        opts = list(self.optimizers.values())
-        for opt in opts:
+        opts = list(self.optimizers.values()) if policy_step else [self.optimizers["critic"]]
+        for opt in self.optimizers.values():
             opt.zero_grad(set_to_none=True)
         backward_and_step(self.grad_scaler, total, opts)
-        self.target_updater.step()
+        if self.target_updater is not None:  # CrossQ has no target networks
+            self.target_updater.step()
         self.updates += 1
         stats = out.detach().select("loss_actor", "loss_qvalue", "loss_alpha", "alpha", "entropy")
         return stats, sample.get(("next", "reward")).detach()
@@ -166,7 +183,8 @@ class SACUpdater(Updater):
             self.actor.load_state_dict(ck["actor"])
             q = TensorDict(ck["qvalue_params"]).to(self.device)
             self.loss.qvalue_network_params.data.update_(q)
-            self.loss.target_qvalue_network_params.data.update_(q)
+            if getattr(self.loss, "target_qvalue_network_params", None) is not None:
+                self.loss.target_qvalue_network_params.data.update_(q)
             if "log_alpha" in ck:
                 self.loss.log_alpha.data.copy_(torch.as_tensor(ck["log_alpha"]))
         except (RuntimeError, KeyError) as exc:
@@ -180,7 +198,7 @@ def make_sac_updater(
     *,
     loss: Callable,
     optim: Callable,
-    target_update: Callable,
+    target_update: Callable | None,
     hidden,
     policy_in_keys,
     gamma: float,
@@ -196,12 +214,14 @@ def make_sac_updater(
     compile_kwargs: dict | None = None,
     critic_norm: str | None = None,
     actor_norm: str | None = None,
+    policy_delay: int = 1,
 ) -> SACUpdater:
     """A :class:`SACUpdater` for ``env``'s specs from the ``algo`` config's partials (``loss``: ``SACLoss``,
     ``optim``, ``target_update``) over ``replay`` (its transform: the learned ``reward``, recomputed at sampling);
     ``demo_replay`` / ``demo_batch``: the demonstrations' share of each batch; ``critic_norm`` / ``actor_norm``:
     :func:`~drs_torchrl.models.make_sac_modules`' normalisation (``loss`` may be another of TorchRL's SAC-family
-    losses taking the same networks, e.g. ``REDQLoss``: an ensemble of critics)."""
+    losses taking the same networks: ``REDQLoss``, an ensemble of critics; ``CrossQLoss`` with ``target_update=None``
+    and batch-renormalised networks); ``policy_delay``: the actor and alpha learn every k-th update."""
     actor, qvalue = make_sac_modules(
         env.observation_spec, env.action_spec, list(policy_in_keys), list(hidden), device=device,
         critic_norm=critic_norm, actor_norm=actor_norm,
@@ -222,7 +242,7 @@ def make_sac_updater(
         actor,
         qvalue,
         sac_loss,
-        target_update(sac_loss),
+        target_update(sac_loss) if target_update is not None else None,
         optimizers,
         replay,
         utd=utd,
@@ -237,4 +257,5 @@ def make_sac_updater(
         compile_kwargs=(compile_kwargs or {}) if compile else None,
         critic_norm=critic_norm,
         actor_norm=actor_norm,
+        policy_delay=policy_delay,
     )
