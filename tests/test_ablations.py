@@ -78,6 +78,7 @@ def test_one_stage_env_and_reward_and_the_reuse_hint(tmp_path):
         full.close()
 
 
+@pytest.mark.sim
 def test_placed_threshold_moves_the_stage_indicator_and_not_success():
     """Sec. 5.4.1: "the task success condition is unchanged" when the placed threshold moves. A real
     PickCube scene with the cube put 5 cm beside the goal and the robot at rest: placed at 10 cm, not
@@ -110,6 +111,7 @@ def test_placed_threshold_moves_the_stage_indicator_and_not_success():
         evaluate_at({"placed_thresh": -0.1}, 0.0)
 
 
+@pytest.mark.sim
 def test_formulas_that_pay_for_hovering_short_of_success_are_flagged(tmp_path):
     """Eq. 4 as printed (and the sum of tanh, Appendix F.3) gives rewards near or above 0, while ManiSkill ends an
     episode on success: the run says so when it starts; the default (rescaled, the authors' code) does not."""

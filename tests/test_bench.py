@@ -13,6 +13,7 @@ def test_roofline_bound_is_the_core_time_formula(monkeypatch):
     import drs_torchrl.apps.bench as bench
 
     monkeypatch.setattr(bench, "gemm_gflops", lambda batch, width, threads, dtype=None: 100.0 * threads)
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
     res = {
         "raw_sim_steps_per_s": 500.0,
         "learn": [{"algo": "sac_cpu", "utd": 0.5}],
@@ -22,14 +23,17 @@ def test_roofline_bound_is_the_core_time_formula(monkeypatch):
         ],
     }
     (row,) = roofline(res)
-    cores = os.cpu_count() or 1
-    expect = cores / (0.5 * 1.6 / row["gemm_gflops_1_thread"] + 1 / 500.0)
-    assert row["env_steps_per_s_bound"] == pytest.approx(expect)
-    assert row["bound_over_plain"] == pytest.approx(expect / 100.0)
-    # more FLOPs per update can only lower the bound
+    cores = 2
+    # 2 cores / (0.5 updates x 1.6 GFLOP / 100 GFLOP/s + 1/500 s of simulation) per env step = 2 / 0.01
+    assert row["gemm_gflops_1_thread"] == 100.0 and row["gemm_gflops_2_threads"] == 200.0
+    assert row["env_steps_per_s_bound"] == pytest.approx(200.0)
+    assert row["bound_over_plain"] == pytest.approx(2.0)  # over the plain loop's 100 env steps/s
+    assert row["update_ms_lower_bound_all_cores"] == pytest.approx(8.0)  # 1.6 GFLOP at 200 GFLOP/s
+    assert row["update_ms_measured"] == 15.0 and row["plain_env_steps_per_s"] == 100.0
+    # ten times the FLOPs: 2 / (0.5 x 16 / 100 + 1/500) = 2 / 0.082
     res["components"][0]["sac_update_gflop"] = 16.0
     (row2,) = roofline(res)
-    assert row2["env_steps_per_s_bound"] < row["env_steps_per_s_bound"]
+    assert row2["env_steps_per_s_bound"] == pytest.approx(2 / 0.082)
     res.update(
         command="drs-bench",
         family="pick_cube",
@@ -57,10 +61,14 @@ def test_roofline_bound_is_the_core_time_formula(monkeypatch):
     assert [r["precision"] for r in rows] == ["fp32", "bf16"] and rows[1]["update_ms_measured"] == 12.0
 
 
-def test_fewer_updates_rows_are_compared_with_the_plain_loop_at_the_same_samples_per_step():
+def test_fewer_updates_rows_are_compared_with_the_plain_loop_at_the_same_samples_per_step(monkeypatch):
     """A batch-512, UTD-0.25 config is compared with the plain loop at batch 256, UTD 0.5 (the same 128
     gradient samples per env step), and also with the plain loop given the same lever."""
+    import drs_torchrl.apps.bench as bench
     from drs_torchrl.apps.bench import algo_settings, parse_algo
+
+    monkeypatch.setattr(bench, "gemm_gflops", lambda batch, width, threads, dtype=None: 100.0 * threads)
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
 
     assert parse_algo("sac_cpu_utd025:bf16", ["fp32", "bf16"]) == ("sac_cpu_utd025", ["bf16"])
     assert parse_algo("sac_paper", ["fp32", "bf16"]) == ("sac_paper", ["fp32", "bf16"])
@@ -87,8 +95,10 @@ def test_fewer_updates_rows_are_compared_with_the_plain_loop_at_the_same_samples
     comp = {"algo": "sac_cpu_utd025", "batch_size": 512, "width": 256, "sac_update_gflop": 3.2, "sac_update_ms": 30.0}
     res = {"raw_sim_steps_per_s": 500.0, "learn": [learn], "plain": plain, "components": [comp]}
     (row,) = roofline(res)
-    cores = os.cpu_count() or 1
-    assert row["env_steps_per_s_bound"] == pytest.approx(cores / (0.25 * 3.2 / row["gemm_gflops_1_thread"] + 1 / 500.0))
+    cores = 2
+    # 2 cores / (0.25 updates x 3.2 GFLOP / 100 GFLOP/s + 1/500 s) per env step = 2 / 0.01
+    assert row["utd"] == 0.25 and row["env_steps_per_s_bound"] == pytest.approx(200.0)
+    assert row["bound_over_plain"] == pytest.approx(2.0)
     assert row["plain_env_steps_per_s"] == 100.0  # the reference (256, 0.5), not the same-lever loop at 512
     res.update(
         command="drs-bench",
@@ -108,6 +118,7 @@ def test_fewer_updates_rows_are_compared_with_the_plain_loop_at_the_same_samples
     )
 
 
+@pytest.mark.sim
 @pytest.mark.slow
 def test_bench_console_is_free_of_library_notices(tmp_path):
     """drs-bench, like the training apps, filters ManiSkill's and TorchRL's routine notices (console.py)."""

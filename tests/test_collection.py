@@ -11,7 +11,6 @@ from drs_torchrl.apps.cli import conf_dir
 from drs_torchrl.apps.build import Run
 from budgets import small
 
-pytestmark = [pytest.mark.sim]
 
 BACKGROUND = "algo.collector._target_=torchrl.collectors.AsyncCollector"
 TINY = small(
@@ -30,6 +29,7 @@ def config(*overrides):
         return compose("learn", overrides=[BACKGROUND, *TINY, *overrides])
 
 
+@pytest.mark.sim
 @pytest.mark.slow
 def test_background_worker_acts_with_the_updated_actor(tmp_path):
     tr = Run(config("total_frames=100000", "algo.learning_starts=0"), "learn", tmp_path)
@@ -55,6 +55,7 @@ def test_background_worker_acts_with_the_updated_actor(tmp_path):
         tr.close()
 
 
+@pytest.mark.sim
 @pytest.mark.slow
 def test_background_run_keeps_utd_exact_and_saves(tmp_path):
     tr = Run(

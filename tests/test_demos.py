@@ -370,6 +370,7 @@ def _policy_run(tmp_path, family_name: str, env_cfg: dict):
     return run
 
 
+@pytest.mark.sim
 def test_a_policy_records_demos_of_its_successful_episodes(tmp_path):
     """The paper's demonstrations come from trained RL agents (Appendix A); any family, solver or not."""
     from drs_torchrl.demos import record_policy_demos
@@ -400,6 +401,7 @@ def test_a_policy_records_demos_of_its_successful_episodes(tmp_path):
     check_demos(meta, get_family("half_cheetah"), {"observation": 17, "stage_indicators": 1})
 
 
+@pytest.mark.sim
 def test_policy_demo_errors_name_the_problem(tmp_path, capsys):
     from drs_torchrl.apps.demos import main
     from drs_torchrl.demos import record_policy_demos
@@ -448,6 +450,7 @@ def test_policy_demo_errors_name_the_problem(tmp_path, capsys):
         env.close()
 
 
+@pytest.mark.sim
 @pytest.mark.slow
 def test_planner_demos_replayed_in_the_agents_controller(pick_cube, tmp_path):
     """--control-mode pd_ee_delta_pos (the agent's): ManiSkill's converter replays each solution in the agent's

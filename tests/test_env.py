@@ -7,8 +7,6 @@ from torchrl.envs.utils import check_env_specs
 from drs_torchrl.envs import ManiSkillEnv, make_family_env
 from drs_torchrl.transforms import DrSReward
 
-pytestmark = pytest.mark.sim
-
 
 @pytest.fixture(scope="module")
 def env(pick_cube):
@@ -17,6 +15,7 @@ def env(pick_cube):
     e.close()
 
 
+@pytest.mark.sim
 def test_specs_pass_and_indicators_reach_the_tensordict(env, pick_cube):
     check_env_specs(env)
     td = env.rollout(5)
@@ -27,6 +26,7 @@ def test_specs_pass_and_indicators_reach_the_tensordict(env, pick_cube):
     assert td["next", "stage"].dtype == torch.int64
 
 
+@pytest.mark.sim
 def test_specs_pass_with_the_learned_reward_and_semi_sparse_reward(pick_cube):
     e = make_family_env(pick_cube, "test", semi_sparse_reward=True, seed=1)
     try:
@@ -42,6 +42,7 @@ def test_specs_pass_with_the_learned_reward_and_semi_sparse_reward(pick_cube):
         e.close()
 
 
+@pytest.mark.sim
 def test_variants_change_the_object(pick_cube):
     small = make_family_env(pick_cube, "cube_1_5cm", seed=0)
     over = make_family_env(pick_cube, "train", variant_overrides={"cube_half_size": 0.03}, seed=0)
@@ -57,6 +58,7 @@ def test_variants_change_the_object(pick_cube):
         over.close()
 
 
+@pytest.mark.sim
 def test_same_seed_same_first_observation(pick_cube):
     a = make_family_env(pick_cube, "train", seed=7)
     b = make_family_env(pick_cube, "train", seed=7)
@@ -67,16 +69,35 @@ def test_same_seed_same_first_observation(pick_cube):
         b.close()
 
 
+@pytest.mark.sim
 def test_unknown_indicator_key_is_reported():
     with pytest.raises(KeyError, match="is_lifted"):
         ManiSkillEnv("PickCube-v1", ["is_lifted"])
 
 
-def test_gpu_backend_without_cuda_is_reported():
-    if torch.cuda.is_available():
-        pytest.skip("this machine has CUDA; the error path only exists without it")
-    with pytest.raises(RuntimeError, match="CUDA is not available"):
+def test_gpu_backend_without_cuda_is_reported(monkeypatch):
+    """On any machine: CUDA made unavailable, the GPU backend is refused before anything is imported or built."""
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    with pytest.raises(RuntimeError, match="sim_backend='physx_cuda' was requested but CUDA is not available"):
         ManiSkillEnv("PickCube-v1", ["success"], sim_backend="physx_cuda", num_envs=4)
+    with pytest.raises(RuntimeError, match="CUDA is not available"):
+        ManiSkillEnv("PickCube-v1", ["success"], sim_backend="cuda", num_envs=4)
+    with pytest.raises(ValueError, match="SerialEnv"):  # auto without CUDA: the CPU backend, one env per process
+        ManiSkillEnv("PickCube-v1", ["success"], sim_backend="auto", num_envs=4)
+
+
+@pytest.mark.sim
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="the GPU simulation needs CUDA (its refusal: the test above)")
+def test_gpu_backend_steps_batched_envs_on_cuda():
+    """Where CUDA is: physx_cuda runs num_envs scenes in one env on the GPU (``auto`` picks it for num_envs > 1)."""
+    e = ManiSkillEnv("PickCube-v1", ["success"], sim_backend="auto", num_envs=4)
+    try:
+        assert e.gpu and e.batch_size == (4,) and e.device.type == "cuda"
+        td = e.rollout(3)
+        assert td["next", "observation"].shape[:2] == (4, 3) and td["next", "observation"].device.type == "cuda"
+        assert ("next", "success") in td.keys(True)
+    finally:
+        e.close()
 
 
 def test_several_cpu_envs_need_batched_envs():
@@ -84,6 +105,7 @@ def test_several_cpu_envs_need_batched_envs():
         ManiSkillEnv("PickCube-v1", ["success"], num_envs=2)
 
 
+@pytest.mark.sim
 def test_missing_asset_fails_fast_with_download_command():
     from drs_torchrl.envs import MissingAssetError
     from drs_torchrl.envs.doctor import missing_assets
@@ -94,6 +116,7 @@ def test_missing_asset_fails_fast_with_download_command():
         ManiSkillEnv("PickSingleYCB-v1", ["success"])
 
 
+@pytest.mark.sim
 def test_several_cpu_envs_through_torchrl_batched_env(pick_cube):
     e = make_family_env(pick_cube, "train", num_envs=2, seed=3)
     try:

@@ -121,13 +121,28 @@ def test_eval_reads_a_committed_record(trained, tmp_path):
 
 
 def test_reward_probe_reports_every_stage_with_a_rank_correlation(trained, tmp_path):
+    """The probe reads discriminator k at the states of stage k: with each discriminator made a constant c_k (its
+    last layer zero but the bias), every stage-k state's tanh(D_k) is tanh(c_k), and no other discriminator's."""
+    import math
+
+    import torch
+
+    from drs_torchrl.transforms import DrSReward
+
+    reward = DrSReward.from_checkpoint(trained / "checkpoints" / "reward.pt")
+    constants = [0.5, -2.0, 3.0]  # tanh: 0.462, -0.964, 0.995
+    with torch.no_grad():
+        for net, c in zip(reward.discriminators.nets, constants):
+            net[-1].weight.zero_()
+            net[-1].bias.fill_(c)
+    reward.save(tmp_path / "constant.pt")
     p = subprocess.run(
         [
             sys.executable,
             "-m",
             "drs_torchrl.apps.probe",
             "--reward",
-            str(trained / "checkpoints" / "reward.pt"),
+            str(tmp_path / "constant.pt"),
             "--policy",
             str(trained),
             "--splits",
@@ -147,7 +162,13 @@ def test_reward_probe_reports_every_stage_with_a_rank_correlation(trained, tmp_p
     stages = res["splits"]["test"]["stages"]
     assert [s["stage"] for s in stages] == [0, 1, 2]
     assert sum(s["states"] for s in stages) >= 2  # two episodes of at most 20 steps, none ending before a step
-    assert all(-1 <= s["tanh_d_mean"] <= 1 for s in stages if s["states"])
+    assert stages[0]["states"] >= 1  # every episode starts at stage 0
+    for s, c in zip(stages, constants):
+        if s["states"]:
+            for key in ("tanh_d_mean", "tanh_d_min", "tanh_d_max"):
+                assert s[key] == pytest.approx(math.tanh(c), abs=1e-6), (s, c)
+        else:
+            assert math.isnan(s["tanh_d_mean"])
     assert (tmp_path / "probe.png").stat().st_size > 1000 and "Spearman" in (tmp_path / "probe.md").read_text()
 
 

@@ -12,9 +12,8 @@ from drs_torchrl.tasks import family_from_config
 from drs_torchrl.apps.cli import conf_dir
 from drs_torchrl.apps.factories import make_envs, make_replay_buffer
 
-pytestmark = pytest.mark.sim
 
-
+@pytest.mark.sim
 def test_factories_and_the_algo_updater_assemble_a_sac_update_on_a_family_env():
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
         cfg = compose("reuse", overrides=["env=turn_valve", "reward=semi_sparse", "algo.hidden=[16,16]"])

@@ -19,7 +19,6 @@ from drs_torchrl.envs import MissingAssetError, make_family_env
 from drs_torchrl.envs.doctor import missing_assets
 from drs_torchrl.tasks import get_family, list_families
 
-pytestmark = pytest.mark.sim
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 RUNNABLE = ["pick_cube", "pick_and_place", "turn_valve", "stack_cube", "place_sphere", "cross_robot"]
@@ -70,6 +69,7 @@ def family_envs(request):
         e.close()
 
 
+@pytest.mark.sim
 def test_splits_build_step_and_label_stages(family_envs):
     fam, envs = family_envs
     assert set(fam.train_variants).isdisjoint(fam.test_variants) and fam.train_variants and fam.test_variants
@@ -88,6 +88,7 @@ def test_splits_build_step_and_label_stages(family_envs):
         assert envs["train"].observation_spec["observation"].shape == envs["test"].observation_spec["observation"].shape
 
 
+@pytest.mark.sim
 @pytest.mark.parametrize("name", [n for n in RUNNABLE if get_family(n).extra.get("observation_groups")])
 def test_named_observation_columns_hold_what_their_names_say(name):
     """A family's ``observation_groups`` (what ``drs-probe --swap-with`` reports) tile the observation and
@@ -109,6 +110,7 @@ def test_named_observation_columns_hold_what_their_names_say(name):
         env.close()
 
 
+@pytest.mark.sim
 def test_every_episode_draws_a_variant_of_the_split(family_envs):
     fam, envs = family_envs
     for split, env in envs.items():
@@ -134,6 +136,7 @@ def test_every_episode_draws_a_variant_of_the_split(family_envs):
         assert len(set(seen)) >= 2, f"{fam.name}/{split}: 16 resets drew only {set(seen)}"
 
 
+@pytest.mark.sim
 def test_a_variant_override_from_the_config_reaches_the_simulator(family_envs):
     fam, _ = family_envs
     key, value = OVERRIDE[fam.name]
@@ -156,6 +159,7 @@ def test_a_variant_override_from_the_config_reaches_the_simulator(family_envs):
         env.close()
 
 
+@pytest.mark.sim
 def test_one_named_variant_stays_fixed():
     fam = get_family("pick_and_place")
     env = make_family_env(fam, "sphere_r2cm", seed=0)
@@ -168,6 +172,7 @@ def test_one_named_variant_stays_fixed():
         env.close()
 
 
+@pytest.mark.sim
 @pytest.mark.slow
 def test_turn_valve_episodes_end_at_their_own_levels_time_limit():
     """ManiSkill's RotateValve levels have their own time limits (80 / 150 / 300); a pooled env keeps them."""
@@ -211,6 +216,7 @@ def test_turn_valve_episodes_end_at_their_own_levels_time_limit():
         make_family_env(fam, "level1", variant_overrides={"max_steps": 0}, seed=0)
 
 
+@pytest.mark.sim
 def test_cross_robot_reward_reads_robot_agnostic_entries_and_fits_every_robot():
     from drs_torchrl.rewards import new_drs_reward
     from drs_torchrl.transforms import DrSReward
@@ -239,6 +245,7 @@ def test_cross_robot_reward_reads_robot_agnostic_entries_and_fits_every_robot():
             e.close()
 
 
+@pytest.mark.sim
 @pytest.mark.parametrize("name", ["pick_cube", "pick_and_place"])
 def test_env_task_observation_adds_the_task_state_to_the_pick_envs(name):
     """env.task_observation=true: the env also writes the 19-number task state (spec-checked); off by default."""
@@ -280,6 +287,7 @@ def test_every_family_has_a_config_and_asset_families_are_registered():
     assert (len(cabinet.train_variants), len(cabinet.test_variants)) == (4, 6)
 
 
+@pytest.mark.sim
 @pytest.mark.parametrize("name", sorted(ASSET_BACKED))
 def test_asset_backed_families_fail_at_once_with_the_download_command(name):
     fam = get_family(name)
@@ -294,6 +302,7 @@ def test_asset_backed_families_fail_at_once_with_the_download_command(name):
         assert f"python -m mani_skill.utils.download_asset {ASSET_BACKED[name]} -y" in str(e.value)
 
 
+@pytest.mark.sim
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["pick_and_place", "stack_cube", "place_sphere", "cross_robot"])
 def test_motion_planner_demos_for_the_new_families(name):

@@ -35,6 +35,7 @@ def _gym(env):
     return env.base_env._env
 
 
+@pytest.mark.sim
 def test_family_envs_have_valid_specs_and_1000_step_episodes(family):
     assert family.backend == "gymnasium" and family.stage_keys == ("success",)
     for split in ("train", "test"):
@@ -53,6 +54,7 @@ def test_family_envs_have_valid_specs_and_1000_step_episodes(family):
             env.close()
 
 
+@pytest.mark.sim
 def test_test_split_multiplies_front_leg_damping_by_1_5(family):
     import mujoco
 
@@ -76,6 +78,7 @@ def test_test_split_multiplies_front_leg_damping_by_1_5(family):
         make_family_env(family, "train", control_mode="pd_ee_delta_pos")
 
 
+@pytest.mark.sim
 def test_success_latches_when_the_running_return_passes_the_configured_threshold(family):
     env = make_family_env(
         family, "train", variant_overrides={"success_return": 1.0}, reward_mode="dense", max_episode_steps=100, seed=0
@@ -113,6 +116,7 @@ def _run(cmd, *args, cwd):
 TINY = [*HALF_CHEETAH, *tiny(frames=384, hidden=32)]
 
 
+@pytest.mark.sim
 @pytest.mark.slow
 def test_drs_learn_and_reuse_run_on_half_cheetah(tmp_path):
     learn, reuse = tmp_path / "learn", tmp_path / "reuse"

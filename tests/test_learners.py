@@ -203,12 +203,18 @@ def test_drs_learner_files_episodes_by_stage_and_separates_them(file_successes):
     assert counts[1] == 5 + (10 * 6 if file_successes else 0)
     assert learner.stage_buffers.episodes_per_stage.tolist() == [10, 1 + (10 if file_successes else 0)]
     assert learner.loss.beyond_rates()[0] == pytest.approx(0.5)  # successes count either way
-    for _ in range(200):
-        out = learner.update()
+    accuracy = [float(learner.update()["accuracy_0"]) for _ in range(200)]
     assert learner.updates == 200
-    # demos only: positives (good states) and negatives separate cleanly; with the agent's successes
-    # filed, their failure-like early states sit on both sides, which caps the accuracy (about 0.62)
-    assert float(out["accuracy_0"]) > (0.9 if not file_successes else 0.55)
+    last = sum(accuracy[-50:]) / 50  # the mean over the last 50 batches (one batch's varies by +-0.1)
+    if not file_successes:  # demos only: positives (good states) and negatives separate cleanly
+        assert last > 0.95
+    else:
+        # the agent's successes filed: their 50 failure-like early states sit among the 65 positives, so the best
+        # a classifier can do is 0.5 * 1 (negatives) + 0.5 * 15/65 (the good positives) = 0.615, chance 0.5
+        assert 0.59 < last < 0.65, last
+    good = states(200, good=True, g=torch.Generator().manual_seed(5))
+    with torch.no_grad():
+        assert (r.discriminators(r.features(good)) > 0).all()  # every good state scored "got beyond stage 0"
     td = TensorDict(
         {
             "next": {

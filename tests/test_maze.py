@@ -273,6 +273,7 @@ TINY = [
 ]
 
 
+@pytest.mark.sim
 @pytest.mark.slow
 def test_drs_maze_learn_then_reuse_then_report(tmp_path):
     learn_dir = tmp_path / "study" / "learn-s0"
@@ -436,6 +437,7 @@ def test_relative_reward_view_is_decoded_from_the_agents_observation():
     assert torch.allclose(got, want)
 
 
+@pytest.mark.sim
 @pytest.mark.slow
 def test_a_patch_only_reward_learns_and_is_reused(tmp_path):
     """``reward.coords=patch``: the reward reads the 3x3 patch and the action, no coordinates."""
@@ -596,6 +598,7 @@ def test_next_state_reward_reads_s_prime_and_a_move_into_a_wall_scores_as_stayin
         assert torch.equal(goal_obs[: 2 * SIZE], goal_obs[2 * SIZE : 4 * SIZE])  # agent on the goal
 
 
+@pytest.mark.sim
 @pytest.mark.slow
 def test_control_options_next_state_demos_only_constant_part_and_moved_gate_maps(tmp_path):
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base=None):
@@ -639,6 +642,7 @@ def test_control_options_next_state_demos_only_constant_part_and_moved_gate_maps
 SHORT = [o if not o.startswith("total_frames=") else "total_frames=512" for o in TINY]
 
 
+@pytest.mark.sim
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["vice_raq", "oril", "gail"])
 def test_learned_baselines_run_on_the_maze_core_and_are_reused(name, tmp_path):
@@ -715,6 +719,7 @@ def test_learned_baselines_run_on_the_maze_core_and_are_reused(name, tmp_path):
         assert torch.allclose(staged - plain, torch.tensor([[-1.0], [0.0]]))
 
 
+@pytest.mark.sim
 def test_an_existing_run_directory_is_refused_unless_overwrite(tmp_path):
     run = tmp_path / "run"
     run.mkdir()
@@ -729,6 +734,7 @@ def test_an_existing_run_directory_is_refused_unless_overwrite(tmp_path):
     assert [int(r["frames"]) for r in csv.DictReader((run / "train.csv").read_text().splitlines())] == [0, 512, 1024]
 
 
+@pytest.mark.sim
 @pytest.mark.slow
 def test_a_refused_drs_maze_keeps_the_runs_hydra_record_and_a_replacing_one_takes_its_place(tmp_path):
     """Hydra writes .hydra before drs-maze starts: a run refused in a directory holding a run had overwritten that
@@ -773,6 +779,7 @@ def test_a_refused_drs_maze_keeps_the_runs_hydra_record_and_a_replacing_one_take
         holder.kill()
 
 
+@pytest.mark.sim
 @pytest.mark.slow
 def test_ppo_learns_the_maze_reward_beside_it_and_reuses_it(tmp_path):
     """The maze on the one loop with another algorithm: PPO (ClipPPOLoss + GAE, a categorical policy) in phase 1
@@ -806,6 +813,7 @@ def test_ppo_learns_the_maze_reward_beside_it_and_reuses_it(tmp_path):
     assert (tmp_path / "reuse" / "policy.pt").is_file()
 
 
+@pytest.mark.sim
 @pytest.mark.slow
 def test_drs_learn_and_drs_reuse_run_the_maze_family(tmp_path, cli):
     """``drs-learn env=maze algo=dqn`` and ``drs-reuse env=maze reward=drs`` are the maze's phases: the same

@@ -6,6 +6,7 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
+from tensordict import TensorDict
 from torchrl.modules import MLP
 
 from drs_torchrl.precision import OutputFloat32, PrecisionError, native_bf16, resolve_precision
@@ -58,11 +59,28 @@ def _trainer(tmp_path, precision):
     return Run(cfg, "learn", tmp_path)
 
 
+def _file_a_success(tr) -> None:
+    """A successful episode of zeros in the top stage buffer, as a demonstration goes (a random policy grasps
+    nothing in 640 steps): every discriminator then has positives, and negatives once the agent's first episode
+    ends, so each SAC update takes its discriminator step."""
+    spec, n = tr.env.observation_spec, tr.learner.reward.num_stages
+    ep = TensorDict(
+        {
+            "observation": torch.zeros(10, *spec["observation"].shape[-1:]),
+            "stage_indicators": torch.ones(10, *spec["stage_indicators"].shape[-1:]),
+            "stage": torch.full((10, 1), n),
+        },
+        batch_size=[10],
+    )
+    tr.learner.stage_buffers.add_trajectory(TensorDict({"next": ep}, batch_size=[10]), demo=True)
+
+
 @pytest.mark.slow
 @pytest.mark.sim
 def test_bf16_learner_multiplies_in_bf16_and_keeps_fp32_weights_state_and_losses(tmp_path):
     tr = _trainer(tmp_path, "bf16")
     assert tr.precision == "bf16"
+    _file_a_success(tr)
     before = {k: v.clone() for k, v in tr.updater.loss.qvalue_network_params.items(True, True)}
     seen = {}
     hidden = next(m for m in tr.updater.loss.qvalue_network.modules() if isinstance(m, torch.nn.Linear))
@@ -73,13 +91,18 @@ def test_bf16_learner_multiplies_in_bf16_and_keeps_fp32_weights_state_and_losses
     hook = hidden.register_forward_hook(record)
     summary = tr.run()
     hook.remove()
-    assert summary["precision"] == "bf16" and summary["updates"] > 0 and summary["disc_updates"] >= 0
+    # 64-step batches from 256 to 640 env steps at UTD 0.5, a discriminator step for each SAC update
+    a = tr.cfg.algo
+    updates = len(range(a.learning_starts, tr.cfg.total_frames + 1, a.frames_per_batch)) * a.frames_per_batch * a.utd
+    assert summary["precision"] == "bf16" and summary["updates"] == updates == 224
+    assert summary["disc_updates"] == updates * tr.cfg.reward.disc.updates_per_sac_update == 224
     assert seen["hidden"] == {torch.bfloat16}  # every critic matrix product ran in bf16 (none escaped autocast in vmap)
     params = dict(tr.updater.loss.named_parameters())
     assert params and all(p.dtype == torch.float32 for p in params.values())
     after = dict(tr.updater.loss.qvalue_network_params.items(True, True))
     assert any(not torch.equal(before[k], after[k]) for k in before)  # it trained
     for opt in (tr.updater.optimizers["actor"], tr.updater.optimizers["critic"], tr.learner.optim):
+        assert opt.state  # it stepped
         for st in opt.state.values():
             assert st["exp_avg"].dtype == torch.float32 and st["exp_avg_sq"].dtype == torch.float32
     for d in tr.learned.discriminators.parameters():

@@ -86,21 +86,19 @@ def test_a_pin_refuses_a_reward_whose_hash_differs_and_one_never_committed(tmp_p
 RECORD = "results/reuse/pick_cube/run_files/placed_5cm_s0"  # its config.yaml names runs/reuse_pick_cube/... (gone)
 
 
-@pytest.mark.slow
-def test_drs_eval_refuses_a_record_whose_reward_hash_differs_in_one_line(tmp_path):
+def test_drs_eval_refuses_a_record_whose_reward_hash_differs_in_one_line(tmp_path, capsys):
+    """(drs-eval's app in this process: the refusal comes before any env is built.)"""
+    from drs_torchrl.apps.evaluate import main as drs_eval
+
     rec = tmp_path / "placed_5cm_s0"
     shutil.copytree(REPO / RECORD, rec)
     pin = json.loads((rec / REWARD_PIN).read_text())
     (rec / REWARD_PIN).write_text(json.dumps({**pin, "checkpoint": str(REPO / pin["checkpoint"]), "sha256": "0" * 64}))
-    p = subprocess.run(
-        [str(BIN / "drs-eval"), str(rec), "--split", "test", "--episodes", "1"],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        cwd=tmp_path,
-    )
-    assert p.returncode == 2
-    assert p.stderr.strip().count("\n") == 0 and "sha256 differs" in p.stderr, p.stderr
+    code = drs_eval([str(rec), "--split", "test", "--episodes", "1"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert err.startswith("drs-eval: error: ") and err.count("\n") == 0 and "sha256 differs" in err, err
+    assert not list(rec.glob("eval_*.json"))
 
 
 @pytest.mark.slow

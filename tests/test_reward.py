@@ -65,6 +65,45 @@ def test_top_stage_has_no_dense_term_and_bounds():
     assert hi == pytest.approx(-1.0) and lo == pytest.approx(-2 - 1 / 9, abs=1e-4)
 
 
+@pytest.mark.parametrize(
+    "formula,N,alpha,offset,low,high",
+    [
+        # paper, Eq. 4: k + alpha*tanh(D_k) over k = 0..N, the top stage N without a dense term: (-alpha, N)
+        ("paper", 3, 1 / 3, -2.0, -1 / 3, 3.0),
+        ("paper", 2, 0.25, -2.0, -0.25, 2.0),
+        # rescaled (the authors' code): (k + alpha*tanh(D_k))/N + offset: (offset - alpha/N, offset + 1)
+        ("rescaled", 3, 1 / 3, -2.0, -2 - 1 / 9, -1.0),
+        ("rescaled", 2, 0.25, -1.0, -1.125, 0.0),
+        # sum of tanh (Appendix F.3), whatever the stage: (-N, N)
+        ("sum", 3, 1 / 3, -2.0, -3.0, 3.0),
+        ("sum", 1, 1 / 3, -2.0, -1.0, 1.0),
+    ],
+)
+def test_each_formula_declares_its_range_and_saturated_discriminators_reach_it(formula, N, alpha, offset, low, high):
+    r = make_reward(N, formula, alpha, offset=offset)
+    assert r.reward_bounds() == pytest.approx((low, high), abs=1e-12)
+    spec = r.transform_reward_spec(Composite(reward=Unbounded((1,))))["reward"]
+    assert (float(spec.space.low), float(spec.space.high)) == pytest.approx((low, high), abs=1e-6)
+    assert spec.dtype == torch.float32
+
+    def saturated(logit, stage):
+        with torch.no_grad():
+            for net in r.discriminators.nets:
+                net[-1].weight.zero_()
+                net[-1].bias.fill_(logit)
+        r.discriminators.trained.fill_(True)
+        x = TensorDict({"observation": torch.randn(4, OBS), "stage": torch.full((4, 1), stage)}, [4])
+        return r.reward(x)
+
+    lowest = saturated(-5.0, 0)  # tanh(-5) = -0.99991: within 1e-3 of the infimum, never below it
+    assert (lowest > low).all() and (lowest < low + 1e-3).all(), lowest
+    highest = saturated(5.0, N) if formula == "sum" else saturated(-5.0, N)  # the top stage: no dense term
+    if formula == "sum":
+        assert (highest < high).all() and (highest > high - 1e-3).all(), highest
+    else:
+        assert torch.equal(highest, torch.full((4, 1), high))  # success attains the maximum
+
+
 @pytest.mark.parametrize("alpha", [0.5, 0.7, 0.0, -0.1])
 def test_alpha_outside_ordering_range_is_rejected(alpha):
     with pytest.raises(ValueError, match="1/2"):

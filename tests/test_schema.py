@@ -166,3 +166,23 @@ def test_a_new_setting_is_one_line_of_a_dataclass():
         check(OmegaConf.create({"rate": 1}), Tiny)
     with pytest.raises(ValueError, match="rate must be a number"):
         check(OmegaConf.create({"rate": "fast"}), Tiny, ValueError)
+
+
+@pytest.mark.parametrize("cuda", [False, True])
+def test_device_cuda_is_refused_exactly_where_cuda_is_missing(monkeypatch, cuda):
+    """The check itself, on a machine with or without CUDA (``torch.cuda.is_available`` set either way); the console
+    script's line for the refusal: results/bad_inputs/ (run with no CUDA device visible)."""
+    import torch
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: cuda)
+    for device in ("cuda", "cuda:1"):
+        cfg = composed("learn", f"device={device}")
+        if cuda:
+            validate_config(cfg, "learn")  # a GPU learner is a setting like any other
+        else:
+            with pytest.raises(ConfigError) as err:
+                validate_config(cfg, "learn")
+            assert str(err.value) == f"device={device} was requested but CUDA is not available; use device=cpu"
+    with pytest.raises(ConfigError, match="device must be cpu, cuda\\[:i\\] or auto, got gpu"):
+        validate_config(composed("learn", "device=gpu"), "learn")
+    validate_config(composed("learn", "device=auto"), "learn")

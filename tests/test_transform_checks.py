@@ -51,6 +51,11 @@ MAKERS = {
     "semi_sparse": _semi_sparse,
 }
 LEARNED = ["drs", "vice_raq", "gail_stages"]
+# the range each learned reward declares, worked out by hand: DrS rescaled with N = 1, alpha = 1/3, offset -2:
+# (offset - alpha/N, offset + 1); the classifiers: log sigmoid of a logit clipped to [-10, 10] (log sigmoid(-10) =
+# -10 - log(1 + e^-10)), up to 0, minus stage_weight * N for gail_stages
+LOG_SIGMOID_MIN = -10.000045398899218
+BOUNDS = {"drs": (-2 - 1 / 3, -1.0), "vice_raq": (LOG_SIGMOID_MIN, 0.0), "gail_stages": (LOG_SIGMOID_MIN - 1.0, 0.0)}
 
 
 def _env(transform=None):
@@ -73,15 +78,17 @@ def _env_with(name):
 def test_single_env_and_inside_and_outside_batched_envs(name):
     maker = functools.partial(_seeded, MAKERS[name])
     t = maker()
+    if name in BOUNDS:  # trained: the learned term in the reward (untrained, DrS's would be exactly -2 or -1)
+        (t.discriminators if isinstance(t, DrSReward) else t.classifier).trained.fill_(True)
     e = _env(t)
     try:
         check_env_specs(e)
-        if hasattr(t, "reward_bounds"):  # the learned rewards declare their range in the reward spec
-            lo, hi = t.reward_bounds()
+        if name in BOUNDS:  # the learned rewards declare their range in the reward spec
+            lo, hi = BOUNDS[name]
             space = e.reward_spec.space
-            assert (space.low.item(), space.high.item()) == pytest.approx((lo, hi))
+            assert (space.low.item(), space.high.item()) == pytest.approx((lo, hi), abs=1e-5)
             r = e.rollout(10)["next", "reward"]
-            assert ((r >= lo) & (r <= hi)).all()
+            assert ((r >= lo) & (r <= hi)).all() and r.unique().numel() > 1, r.reshape(-1)
     finally:
         e.close()
     for batched in (SerialEnv, ParallelEnv):

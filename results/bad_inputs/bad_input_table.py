@@ -232,8 +232,13 @@ def cases(work: Path, good_run: Path) -> list[Case]:
         Case("batch larger than the buffer can supply", [*L, "algo.buffer_size=16"]),
         Case("missing ManiSkill asset (env that needs YCB)", [*L, "env=pick_ycb"], {"MS_ASSET_DIR": "{d}/no_assets"}),
         Case("no usable Vulkan device", [*L], {"VK_ICD_FILENAMES": "{d}/none.json"}),
-        Case("CUDA asked for, none present", [*L, "device=cuda"]),
-        Case("GPU simulation asked for, no CUDA", [*L, "env.sim_backend=physx_cuda", "env.num_envs=64"]),
+        # no CUDA device visible, on a GPU machine too (there these would be runs, not bad inputs)
+        Case("CUDA asked for, none present", [*L, "device=cuda"], {"CUDA_VISIBLE_DEVICES": ""}),
+        Case(
+            "GPU simulation asked for, no CUDA",
+            [*L, "env.sim_backend=physx_cuda", "env.num_envs=64"],
+            {"CUDA_VISIBLE_DEVICES": ""},
+        ),
         Case("demonstrations that do not match the task", [*L, f"demos.path={work / 'wrong.demos'}"]),
         Case("demonstrations path that is not a demos directory", [*L, f"demos.path={work}"]),
         Case("demonstrations whose meta.json is damaged", [*L, "demos.path={d}/damaged.demos"]),
