@@ -119,7 +119,8 @@ def test_crossq_has_no_targets_delays_the_actor_and_acts_on_running_statistics(t
         a0, c0 = actor_params(), critic_params()
         u.step()
         moved.append((changed(a0, actor_params()), changed(c0, critic_params())))
-        assert not u.actor.training and not u.loss.qvalue_network.training  # acting (collection, evaluation) on running statistics
+        # acting (collection, evaluation) on running statistics
+        assert not u.actor.training and not u.loss.qvalue_network.training
     assert [m[1] for m in moved] == [True] * 4
     # the actor's running statistics move on every update (the loss samples next actions with it) ...
     assert [m[0] for m in moved][1:3] == [True, True]
