@@ -56,6 +56,20 @@ def layer_norms(module: nn.Module) -> int:
     return sum(isinstance(m, nn.LayerNorm) for m in module.modules())
 
 
+def assert_policy_file_rebuilds_the_actor(u, tmp_path) -> None:
+    """policy.pt as the run writes it: drs-eval's loader rebuilds the same actor (normalisations included) and a run of
+    the same algo fine-tunes from it."""
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    ck = {"format": "drs-torchrl/policy", "family": "pick_cube", **u.policy_checkpoint()}
+    torch.save(ck, tmp_path / "policy.pt")
+    actor, _ = load_policy(tmp_path / "policy.pt", Env.observation_spec, Env.action_spec, family="pick_cube")
+    td = TensorDict({"observation": torch.randn(5, OBS), "stage_indicators": torch.zeros(5, 3)}, [5])
+    with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
+        assert torch.allclose(actor(td.clone())["action"], u.actor(td.clone())["action"])
+    assert u.init_from(ck) == []
+
+
 @pytest.mark.parametrize(
     "algo, critic_ln, actor_ln, critics, batch_size, utd",
     [
@@ -77,16 +91,7 @@ def test_each_candidate_builds_what_it_names_and_trains(algo, critic_ln, actor_l
     assert all(bool(torch.isfinite(stats[k])) for k in ("loss_actor", "loss_qvalue", "loss_alpha"))
     after = list(u.loss.qvalue_network_params.values(True, True))
     assert all(not torch.equal(a, b) for a, b in zip(after, before) if a.requires_grad)
-    # policy.pt as the run writes it; drs-eval's loader rebuilds the same actor (norms included)
-    ck = {"format": "drs-torchrl/policy", "family": "pick_cube", **u.policy_checkpoint()}
-    torch.save(ck, tmp_path / "policy.pt")
-    actor, _ = load_policy(tmp_path / "policy.pt", Env.observation_spec, Env.action_spec, family="pick_cube")
-    td = TensorDict({"observation": torch.randn(5, OBS), "stage_indicators": torch.zeros(5, 3)}, [5])
-    from torchrl.envs.utils import ExplorationType, set_exploration_type
-
-    with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
-        assert torch.allclose(actor(td.clone())["action"], u.actor(td.clone())["action"])
-    assert u.init_from(ck) == []
+    assert_policy_file_rebuilds_the_actor(u, tmp_path)
 
 
 def test_a_policy_of_another_architecture_is_refused_for_fine_tuning():
@@ -134,12 +139,4 @@ def test_crossq_has_no_targets_delays_the_actor_and_acts_on_running_statistics(t
     assert changed(before, w())
     # the module that acts holds the running statistics the loss trains
     assert any(float(m.running_mean.abs().sum()) > 0 for m in brn)
-    ck = {"format": "drs-torchrl/policy", "family": "pick_cube", **u.policy_checkpoint()}
-    torch.save(ck, tmp_path / "policy.pt")
-    actor, _ = load_policy(tmp_path / "policy.pt", Env.observation_spec, Env.action_spec, family="pick_cube")
-    from torchrl.envs.utils import ExplorationType, set_exploration_type
-
-    td = TensorDict({"observation": torch.randn(5, OBS), "stage_indicators": torch.zeros(5, 3)}, [5])
-    with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
-        assert torch.allclose(actor(td.clone())["action"], u.actor(td.clone())["action"])
-    assert u.init_from(ck) == []
+    assert_policy_file_rebuilds_the_actor(u, tmp_path)
