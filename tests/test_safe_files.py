@@ -132,6 +132,17 @@ def test_allowed_targets(target, ok):
     assert allowed_target(target) is ok
 
 
+def test_a_users_own_module_is_allowed_only_when_the_user_names_it(monkeypatch):
+    """docs/rewards.md: a reward builder of the user's own; a config cannot trust itself, the environment can."""
+    cfg = {"reward": {"learner": {"_target_": "my_rewards.builders.my_learner"}}}
+    with pytest.raises(UnsafeFileError, match="DRS_TRUSTED_TARGETS=your_module"):
+        check_targets(cfg, "config.yaml")
+    monkeypatch.setenv("DRS_TRUSTED_TARGETS", "other, my_rewards")
+    check_targets(cfg, "config.yaml")
+    assert not allowed_target("my_rewards.builders.load_pickle")  # never a loader, trusted or not
+    assert not allowed_target("my_rewardsX.builders.my_learner")  # a prefix is a module, not a string start
+
+
 def test_every_committed_run_config_passes_the_target_check():
     configs = sorted(REPO.glob("results/**/config.yaml"))
     assert len(configs) > 100

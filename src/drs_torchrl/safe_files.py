@@ -12,6 +12,7 @@ weights-only as well, with numpy's array constructors allowed.
 from __future__ import annotations
 
 import argparse
+import os
 import pickle
 import re
 import shutil
@@ -53,19 +54,25 @@ def torch_load(path: str | Path, what: str, map_location="cpu"):
         found = _unsafe_globals(exc) or ["a pickled object"]
         raise UnsafeFileError(
             f"{path}: refused: this {what} holds {', '.join(found)}, which only a full unpickling would load, and "
-            "unpickling runs whatever the file names (drs-torchrl writes tensors, numbers and strings only); if "
-            f"you trust it (a file of an earlier drs-torchrl), rewrite it in the safe form: {CONVERT} {path}"
+            "unpickling runs whatever the file names (drs-torchrl writes tensors, numbers and strings only); a "
+            f"file of an earlier drs-torchrl (numpy arrays in it) is rewritten in the safe form by: {CONVERT} {path}"
         ) from None
 
 
+#: the user's own modules a run's config may name too (a reward builder of theirs, docs/rewards.md): comma-separated
+#: prefixes in this environment variable, which a file from elsewhere cannot set
+TRUSTED_ENV = "DRS_TRUSTED_TARGETS"
+
+
+def _trusted() -> tuple[str, ...]:
+    own = tuple(p.strip().rstrip(".") + "." for p in os.environ.get(TRUSTED_ENV, "").split(",") if p.strip())
+    return ALLOWED_TARGETS + own
+
+
 def allowed_target(value) -> bool:
-    """A ``_target_`` a config from elsewhere may name: a plain dotted name under :data:`ALLOWED_TARGETS`, none of
-    whose parts is private or a loader."""
-    if (
-        not isinstance(value, str)
-        or not re.fullmatch(r"[A-Za-z_][\w.]*", value)
-        or not value.startswith(ALLOWED_TARGETS)
-    ):
+    """A ``_target_`` a config from elsewhere may name: a plain dotted name under :data:`ALLOWED_TARGETS` (or a prefix
+    the user trusts in ``$DRS_TRUSTED_TARGETS``), none of whose parts is private or a loader."""
+    if not isinstance(value, str) or not re.fullmatch(r"[A-Za-z_][\w.]*", value) or not value.startswith(_trusted()):
         return False
     return not any(part.startswith("_") or "load" in part.lower() for part in value.split("."))
 
@@ -85,7 +92,7 @@ def check_targets(cfg, source: str | Path) -> None:
                     raise UnsafeFileError(
                         f"{source}: refused: {where} is {value!r}; a run's config may instantiate only the classes and "
                         f"functions of {', '.join(p.rstrip('.') for p in ALLOWED_TARGETS)}, no loader (a config from "
-                        "elsewhere must not run other code); start a new run with your own overrides instead"
+                        f"elsewhere must not run other code); for a module of your own: {TRUSTED_ENV}=your_module"
                     )
                 walk(value, where)
         elif isinstance(node, list):
