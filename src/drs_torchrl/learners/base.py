@@ -1,6 +1,6 @@
 """The reward-learning core: what Algorithm 1 adds to an RL loop, apart from any RL algorithm.
 
-An RL loop (SAC here, DQN for the maze, PPO later) talks to a :class:`RewardLearner` through a few
+An RL loop (SAC, DQN for the maze, PPO: :mod:`drs_torchrl.updaters`) talks to a :class:`RewardLearner` through a few
 calls: it hands over what it collected (:meth:`~RewardLearner.observe`), lets it take its update
 steps (:meth:`~RewardLearner.update`, once per RL update) and saves it (:meth:`~RewardLearner.save_reward`,
 :meth:`~RewardLearner.state_dict`, :meth:`~RewardLearner.dump_buffers`). Its :attr:`~RewardLearner.reward`

@@ -152,11 +152,16 @@ def make_ppo_updater(
     normalize_advantage: bool = True,
     device: torch.device | str = "cpu",
     reward=None,
-    **_ignored,
+    precision: str = "fp32",
+    grad_scaler=None,
+    demo_replay=None,
+    demo_batch: int = 0,
 ) -> PPOUpdater:
-    """A :class:`PPOUpdater` for ``env``'s specs. ``replay`` is unused (on-policy); ``_ignored`` takes the
-    off-policy arguments the run passes every updater (precision, demonstrations' share): PPO runs fp32 and
-    trains on its own batches only."""
+    """A :class:`PPOUpdater` for ``env``'s specs. The arguments the run passes every updater that PPO does not use
+    are named, so that a misspelt setting of its ``updater`` node fails: ``replay`` (on-policy), ``precision`` and
+    ``grad_scaler`` (PPO runs fp32: its small networks gain nothing from autocast), ``demo_replay`` / ``demo_batch``
+    (it trains on its own batches; demonstrations still reach the stage buffers)."""
+    del replay, precision, grad_scaler, demo_replay, demo_batch  # not used, see above
     keys = list(policy_in_keys)
     n_in = sum(int(env.observation_spec[k].shape[-1]) for k in keys)
     if isinstance(env.action_spec, OneHot):

@@ -217,11 +217,15 @@ def make_sac_updater(
     policy_delay: int = 1,
 ) -> SACUpdater:
     """A :class:`SACUpdater` for ``env``'s specs from the ``algo`` config's partials (``loss``: ``SACLoss``,
-    ``optim``, ``target_update``) over ``replay`` (its transform: the learned ``reward``, recomputed at sampling);
+    ``optim``, ``target_update``) over ``replay`` (its transform: the learned ``reward``, recomputed at sampling;
+    ``reward`` is checked to be that transform);
     ``demo_replay`` / ``demo_batch``: the demonstrations' share of each batch; ``critic_norm`` / ``actor_norm``:
     :func:`~drs_torchrl.models.make_sac_modules`' normalisation (``loss`` may be another of TorchRL's SAC-family
     losses taking the same networks: ``REDQLoss``, an ensemble of critics; ``CrossQLoss`` with ``target_update=None``
     and batch-renormalised networks); ``policy_delay``: the actor and alpha learn every k-th update."""
+    if reward is not None and replay is not None and not any(t is reward for t in getattr(replay, "_transform", [])):
+        # SAC trains on the rewards its replay buffer's transform recomputes at sampling (Algorithm 1, line 18)
+        raise ValueError("the learned reward must be the replay buffer's transform (make_replay_buffer(transform=...))")
     actor, qvalue = make_sac_modules(
         env.observation_spec, env.action_spec, list(policy_in_keys), list(hidden), device=device,
         critic_norm=critic_norm, actor_norm=actor_norm,
