@@ -20,7 +20,7 @@ from omegaconf import OmegaConf
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from drs_torchrl.envs.factory import make_family_env
-from drs_torchrl.models import make_sac_modules
+from drs_torchrl.models import make_sac_modules, read_policy_checkpoint
 from drs_torchrl.tasks import get_family
 from drs_torchrl.transforms import DrSReward
 
@@ -38,7 +38,7 @@ def main() -> None:
     env = make_family_env(
         family, a.split or cfg.env.split, reward_mode="dense", seed=12345, variant_overrides={"success_return": 4800.0}
     )
-    ck = torch.load(a.run_dir / "checkpoints" / "policy.pt", map_location="cpu", weights_only=False)
+    _, ck = read_policy_checkpoint(a.run_dir)  # weights-only: a shared policy.pt runs no code
     actor, _ = make_sac_modules(env.observation_spec, env.action_spec, ck["policy_in_keys"], ck["hidden"])
     actor.load_state_dict(ck["actor"])
     reward_path = a.run_dir / "checkpoints" / "reward.pt"

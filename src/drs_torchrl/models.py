@@ -123,7 +123,8 @@ def make_sac_modules(
     actor, qvalue = actor.to(device), qvalue.to(device)
     with torch.no_grad():
         td = observation_spec.zero().to(device)
-        actor.eval(), qvalue.eval()  # batch statistics are the loss's business: modules act on running ones
+        actor.eval()  # batch statistics are the loss's business (CrossQ): the modules act on running ones
+        qvalue.eval()
         actor(td)
         qvalue(td)
     return actor, qvalue

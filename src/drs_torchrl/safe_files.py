@@ -1,12 +1,12 @@
 """Files from elsewhere run no code: every ``torch.load`` of the project is weights-only, every memory-mapped
-TensorDict is read without its pickle sidecar, and a run's ``config.yaml`` may only name the project's, TorchRL's,
-tensordict's and torch's classes.
+TensorDict is read without its pickle sidecar, and a run's ``config.yaml`` may only name the library's, TorchRL's and
+torch's classes and functions.
 
-Rewards, policies and run directories are made to be shared, and ``torch.load(..., weights_only=False)`` (like any
-unpickling) runs whatever a file pickled. drs-torchrl writes only tensors, numbers, strings and plain containers,
-which a weights-only load reads; a file that needs more is refused with one line naming what it holds. A file the
-of an earlier version (its numpy RNG state, an ``ndarray``) is rewritten by ``drs-convert``, which reads it
-weights-only as well, with numpy's array constructors allowed.
+Rewards, policies and run directories are made to be shared, and a full unpickling runs whatever a file pickled.
+drs-torchrl writes only tensors, numbers, strings and plain containers, which a weights-only load reads; a file that
+needs more is refused with one line naming what it holds. A file of an earlier version (its numpy RNG state, an
+``ndarray``) is rewritten by ``drs-convert``, which reads it weights-only as well, with numpy's array constructors
+allowed.
 """
 
 from __future__ import annotations
@@ -121,8 +121,6 @@ def _plain(obj):
         return tuple(out) if isinstance(obj, tuple) else out
     if obj is None or isinstance(obj, (bool, int, float, str, bytes, torch.Tensor, torch.dtype, torch.Size)):
         return obj
-    if isinstance(obj, torch.nn.Module):  # not a thing drs-torchrl saves: refuse rather than guess
-        raise UnsafeFileError(f"it holds a whole {type(obj).__name__} module, which drs-torchrl never wrote")
     raise UnsafeFileError(f"it holds a {type(obj).__module__}.{type(obj).__qualname__}, which drs-torchrl never wrote")
 
 
