@@ -95,6 +95,12 @@ def paths_in_study(text: str) -> tuple[list[str], set[str]]:
     return paths + p, outputs | o
 
 
+def _exists_in_repo(path: Path) -> bool:
+    """``path`` exists and lies inside the repository: a sibling checkout (../ft-wt) exists only on some machines."""
+    resolved = path.resolve()
+    return resolved.exists() and (resolved == REPO or REPO in resolved.parents)
+
+
 def missing_paths(doc: Path, text: str | None = None) -> list[str]:
     """The paths ``doc`` names that do not exist (``text`` instead of the file's own)."""
     text = doc.read_text() if text is None else text
@@ -108,7 +114,7 @@ def missing_paths(doc: Path, text: str | None = None) -> list[str]:
         first = p.split("/")[0]
         if not any((b / first).exists() for b in bases):
             continue  # prose with a slash (D_k/dense, fp32/bf16): its first part names nothing here
-        if not any((b / p).exists() for b in bases):
+        if not any(_exists_in_repo(b / p) for b in bases):
             missing.append(p)
     return missing
 
@@ -144,7 +150,9 @@ Not paths: `runs/maze/study/learn-s0/reward.pt`, `<run>/reward.pt`, `RUN_DIR/che
 drs-demos --out results/generated/planner.demos
 ```
 and `results/generated/planner.demos` is written by the command above."""
+    text += "\nA sibling checkout counts as missing, whether or not this machine has one: `../no_such_checkout`."
     assert sorted(missing_paths(doc, text)) == [
+        "../no_such_checkout",
         "results/nowhere/",
         "results/precision/no_such_study.yaml",
         "results/reuse/turn_valve/run_files/x_s9",
@@ -167,6 +175,19 @@ and `results/generated/planner.demos` is written by the command above."""
         + "# made by: drs-demos --out results/made.demos; see results/missing/README.md\n"
     )
     assert missing_paths(study) == ["results/no_record", "results/gone/reward.pt", "results/missing/README.md"]
+
+
+def test_a_path_outside_the_repository_is_missing_even_where_this_machine_has_it(tmp_path, monkeypatch):
+    """The check gives the same verdict on every machine: a sibling worktree that exists here does not count."""
+    import sys
+
+    repo, sibling = tmp_path / "repo", tmp_path / "ft-wt"
+    (repo / "results").mkdir(parents=True)
+    sibling.mkdir()
+    (repo / "results" / "notes.md").write_text("x")
+    monkeypatch.setattr(sys.modules[__name__], "REPO", repo)
+    doc = repo / "results" / "README.md"
+    assert missing_paths(doc, "Runs in `../ft-wt`; see `results/notes.md`.") == ["../ft-wt"]
 
 
 def _drs_imports(script: Path) -> list[tuple[str, str | None]]:
