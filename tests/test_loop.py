@@ -128,6 +128,9 @@ def run(
     eval_interval=10**9,
     checkpoint_interval=10**9,
     stop_at_success=None,
+    stop_at_eval_success=None,
+    eval_streak=1,
+    eval_success=(0.5,),
     window=4,
     progress=None,
     sync=False,
@@ -139,9 +142,14 @@ def run(
     updater = updater if updater is not None else StubUpdater(calls)
     stub_learner = StubLearner(calls) if learner else None
 
-    def evaluate():
+    evals = iter(eval_success)
+
+    def evaluate():  # the evaluations' success rates in turn, the last one repeated
         calls.append(("evaluate",))
-        return {"success_rate": 0.5}
+        evaluate.last = next(evals, evaluate.last)
+        return {"success_rate": evaluate.last}
+
+    evaluate.last = eval_success[-1]
 
     def save():
         calls.append(("save",))
@@ -161,6 +169,8 @@ def run(
             eval_interval=eval_interval,
             checkpoint_interval=checkpoint_interval,
             stop_at_success=stop_at_success,
+            stop_at_eval_success=stop_at_eval_success,
+            eval_streak=eval_streak,
         ),
         progress=progress if progress is not None else Progress(),
         sync_policy=(lambda: calls.append(("sync_policy",))) if sync else None,
@@ -373,6 +383,29 @@ def test_stop_at_success_waits_for_a_full_window():
     assert summary["stopped_at_success"]["frames"] == 192 and summary["stopped_at_success"]["success_rate"] == 2 / 3
     summary, _, _, _ = run(batches, log_interval=BATCH, stop_at_success=None, window=4)
     assert "stopped_at_success" not in summary and summary["frames"] == 192
+
+
+def test_eval_stop_at_success_ends_the_run_after_a_streak_of_evaluations_and_a_lower_one_resets_it():
+    batches = [batch(i) for i in range(8)]
+    # evaluations at 64, 128, ...: 0.8, 0.6 (the streak resets), 0.9, 0.8 -> the second in a row at 256
+    summary, calls, _, _ = run(
+        batches, eval_interval=BATCH, stop_at_eval_success=0.8, eval_streak=2, eval_success=(0.8, 0.6, 0.9, 0.8, 0.1)
+    )
+    assert summary["stopped_at_eval_success"] == {"success_rate": 0.8, "threshold": 0.8, "streak": 2, "frames": 256}
+    assert summary["frames"] == 256 and summary["interrupted"] is False
+    assert len(calls.of("extend")) == 4 and len(calls.of("evaluate")) == 4  # no second evaluation at the end
+    assert names(calls)[-3:] == ["log eval", "log train", "save"]  # finished: its last rows, then the final save
+    summary, calls, _, _ = run(batches, eval_interval=BATCH, stop_at_eval_success=None, eval_success=(1.0,))
+    assert "stopped_at_eval_success" not in summary and summary["frames"] == 8 * BATCH
+
+
+def test_the_evaluation_streak_is_part_of_the_progress_a_resume_continues():
+    progress = Progress(frames=0, eval_streak=1)  # the saved state's streak: one evaluation reached it already
+    summary, _, _, _ = run(
+        [batch(i) for i in range(4)], eval_interval=BATCH, stop_at_eval_success=0.5, eval_streak=2,
+        eval_success=(0.5,), progress=progress,
+    )  # fmt: skip
+    assert summary["stopped_at_eval_success"]["frames"] == BATCH and progress.eval_streak == 2
 
 
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])

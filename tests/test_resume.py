@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 import torch
 from omegaconf import OmegaConf
-from budgets import small
+from budgets import small, tiny
 
 pytestmark = [pytest.mark.sim, pytest.mark.slow]
 
@@ -287,3 +287,31 @@ def test_stop_at_success_ends_phase_1_as_finished_and_a_resume_can_ask_for_it(tm
     assert (run_dir / "checkpoints" / "reward.pt").is_file()
     assert run_state(run_dir, 100000) == "finished"  # a study does not resume it to total_frames
     assert "stop_at_success=0 at" in p.stdout
+
+
+def test_eval_stop_at_success_ends_a_reuse_run_as_finished_at_the_evaluation_that_reached_it(tmp_path):
+    """``eval.stop_at_success``: a run ends (finished, saved) at the evaluation that completes the streak, short of
+    total_frames, and a study does not resume it. (Threshold 0 so that the first evaluation reaches it.)"""
+    from drs_torchrl.apps.study import run_state
+
+    run_dir = tmp_path / "run"
+    args = [
+        *tiny(frames=2048, eval_every=256, disc_batch=None),
+        "reward=dense",
+        "eval.stop_at_success=0.0",
+        "eval.stop_streak=2",
+    ]
+    p = subprocess.run(
+        [str(BIN / "drs-reuse"), *args, f"hydra.run.dir={run_dir}"],
+        env=dict(os.environ, PYTHONWARNINGS="ignore"),
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert p.returncode == 0, p.stderr[-3000:]
+    s = json.loads((run_dir / "summary.json").read_text())
+    assert s["interrupted"] is False and s["stopped_at_eval_success"]["streak"] == 2
+    assert _steps(run_dir / "eval.csv") == [256, 512] and s["frames"] == 512  # two evaluations, no third
+    assert (run_dir / "checkpoints" / "policy.pt").is_file()
+    assert run_state(run_dir, 2048) == "finished"
+    assert "eval.stop_at_success=0 in 2 evaluation(s) in a row at 512 env steps" in p.stdout

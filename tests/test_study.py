@@ -130,6 +130,19 @@ def test_run_state_tells_finished_interrupted_and_broken_runs_apart(tmp_path):
     assert run_state(d, want_frames=64) == "finished"
     (d / "config.yaml").write_text("total_frames: 256\n")  # extended: not finished any more
     assert run_state(d) == "resumable"
+    for rule in ("stopped_at_success", "stopped_at_eval_success"):  # ended early by its own stopping rule
+        (d / "summary.json").write_text(json.dumps({"frames": 128, "interrupted": False, rule: {"frames": 128}}))
+        assert run_state(d) == "finished"
+
+
+def test_a_resumed_run_keeps_the_study_files_budget_and_stopping_rules(tmp_path):
+    from drs_torchrl.apps.study import Run, command
+
+    run = Run(
+        name="a", app="reuse", args=["seed=0", "total_frames=9", "eval.stop_at_success=0.8", "+eval.stop_streak=2"]
+    )
+    cmd = command(run, tmp_path / "a", "resumable")
+    assert cmd[1:] == [f"resume={tmp_path / 'a'}", "total_frames=9", "eval.stop_at_success=0.8", "+eval.stop_streak=2"]
 
 
 @pytest.mark.sim

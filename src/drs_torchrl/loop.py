@@ -38,6 +38,8 @@ class Schedule:
     eval_interval: int = 20000
     checkpoint_interval: int = 20000
     stop_at_success: float | None = None  # end once the training success over a full episode window reaches it
+    stop_at_eval_success: float | None = None  # end once this many evaluations in a row (eval_streak) reach it
+    eval_streak: int = 1
 
 
 @dataclass
@@ -46,6 +48,7 @@ class Progress:
 
     frames: int = 0
     last_eval_frames: int = -1
+    eval_streak: int = 0  # evaluations in a row, up to the last, whose success reached ``stop_at_eval_success``
     resumed_from: int | None = None
     # the run's earlier processes, one {"from", "to", "wall_s"} each (what each covered up to its last saved state)
     segments: list[dict] = field(default_factory=list)
@@ -240,12 +243,15 @@ def run_algorithm1(
         row.update(**episodes.row(), **log.means())
         return {**row, **(learner.log_row() if learner is not None else {})}
 
-    def evaluate_and_log() -> None:
+    def evaluate_and_log() -> bool:
+        """Evaluate and log; True when ``stop_at_eval_success`` is now reached."""
         ev = evaluate()
         progress.last_eval_frames = progress.frames
-        if ev:
-            logger.log("eval", progress.frames, ev)
-            summary["last_eval"] = ev
+        if not ev:
+            return False
+        logger.log("eval", progress.frames, ev)
+        summary["last_eval"] = ev
+        return _eval_reached(schedule, ev, progress, summary, name)
 
     interrupted = forced = False
     with StopRequest() as stop:  # stays until the end: the final evaluation and saves stop cleanly too
@@ -272,8 +278,8 @@ def run_algorithm1(
                     log = UpdateLog()
                     if _reached(schedule.stop_at_success, episodes, row, progress, summary, name):
                         break
-                if eval_at.due(progress.frames):
-                    evaluate_and_log()
+                if eval_at.due(progress.frames) and evaluate_and_log():
+                    break
                 if ckpt_at.due(progress.frames):
                     save()
                     logger.flush()
@@ -315,6 +321,29 @@ def run_algorithm1(
     if learner is not None:
         summary.update(learner.summary())
     return summary
+
+
+def _eval_reached(schedule: Schedule, ev: dict, progress: Progress, summary: dict, name: str) -> bool:
+    """``stop_at_eval_success``: ``eval_streak`` evaluations in a row reached it (a comparison's "env steps to
+    success" is then known, and the rest of the budget would only confirm it); the run ends as finished."""
+    target = schedule.stop_at_eval_success
+    if target is None:
+        return False
+    reached = float(ev.get("success_rate", 0.0)) >= float(target)
+    progress.eval_streak = progress.eval_streak + 1 if reached else 0
+    if progress.eval_streak < schedule.eval_streak:
+        return False
+    summary["stopped_at_eval_success"] = {
+        "success_rate": float(ev["success_rate"]),
+        "threshold": float(target),
+        "streak": int(schedule.eval_streak),
+        "frames": int(progress.frames),
+    }
+    tqdm.write(
+        f"{name}: evaluation success {float(ev['success_rate']):.2f} >= eval.stop_at_success={float(target):g} "
+        f"in {schedule.eval_streak} evaluation(s) in a row at {progress.frames} env steps: stopping"
+    )
+    return True
 
 
 def _reached(target, episodes: EpisodeWindow, row: dict, progress: Progress, summary: dict, name: str) -> bool:

@@ -409,6 +409,7 @@ class Run:
                 "disc_updates": self.learner.updates if self.learner is not None else 0,
                 "owed_updates": u.pop("owed_updates"),
                 "last_eval_frames": self.progress.last_eval_frames,
+                "eval_streak": self.progress.eval_streak,
                 "segments": self.segments(),
             },
             **u,  # loss, optimizers (and whatever else the updater keeps)
@@ -436,6 +437,7 @@ class Run:
         c = payload["counters"]
         self.progress.frames, self.progress.last_eval_frames = int(c["frames"]), int(c["last_eval_frames"])
         self.progress.segments = list(c.get("segments", []))  # states written before segments were kept: none
+        self.progress.eval_streak = int(c.get("eval_streak", 0))  # states written before it was kept: none
         known = ("format", "version", "phase", "algo", "counters", "learner", "recent_episodes", "rng")
         state = {k: v for k, v in payload.items() if k not in known}
         self.updater.load_state_dict({**state, "updates": c["updates"], "owed_updates": c["owed_updates"]})
@@ -529,6 +531,8 @@ class Run:
                         eval_interval=int(cfg.eval.interval),
                         checkpoint_interval=int(cfg.checkpoint_interval),
                         stop_at_success=cfg.get("stop_at_success"),
+                        stop_at_eval_success=cfg.eval.get("stop_at_success"),
+                        eval_streak=int(cfg.eval.get("stop_streak") or 1),
                     ),
                     progress=self.progress,
                     sync_policy=self.collector.update_policy_weights_ if background else None,

@@ -49,6 +49,8 @@ class EvalSchema:
     interval: int = setting(gt=0, example=20000)
     episodes: int = setting(ge=0, example=20)
     episode_seed: Optional[int] = setting(ge=0, example=1000)
+    stop_at_success: Optional[float] = setting(ge=0, le=1, example=0.8, noun="a success rate")
+    stop_streak: int = setting(gt=0, example=2)
 
 
 @dataclass

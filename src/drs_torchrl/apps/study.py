@@ -411,7 +411,8 @@ def wanted_frames(run: Run) -> int | None:
 def run_state(run_dir: Path, want_frames: int | None = None) -> str:
     """``finished``, ``resumable`` (a complete training state), ``broken`` (a directory with no
     usable state: it is started again) or ``new``. A run that finished short of ``want_frames``
-    (the study file now asks for more) is ``resumable``; one that stopped at ``stop_at_success`` is finished."""
+    (the study file now asks for more) is ``resumable``; one that stopped at ``stop_at_success`` or
+    ``eval.stop_at_success`` is finished."""
     summary = run_dir / "summary.json"
     if summary.is_file():
         try:
@@ -420,7 +421,8 @@ def run_state(run_dir: Path, want_frames: int | None = None) -> str:
 
             total = int(omegaconf.OmegaConf.load(run_dir / "config.yaml").total_frames)
             total = max(total, want_frames or 0)
-            if not s.get("interrupted") and (int(s.get("frames", 0)) >= total or s.get("stopped_at_success")):
+            early = s.get("stopped_at_success") or s.get("stopped_at_eval_success")
+            if not s.get("interrupted") and (int(s.get("frames", 0)) >= total or early):
                 return "finished"
         except Exception:
             pass
@@ -434,8 +436,9 @@ def command(run: Run, run_dir: Path, state: str, args: list[str] | None = None) 
     exe = str(Path(sys.executable).parent / f"drs-{run.app}")
     args = run.args if args is None else args
     if state == "resumable":
-        # budget overrides (a larger total_frames, stop_at_success) are honoured on resume
-        extend = [a for a in args if a.split("=", 1)[0] in ("total_frames", "stop_at_success")]
+        # budget overrides (a larger total_frames, the stopping rules) are honoured on resume
+        budget = ("total_frames", "stop_at_success", "eval.stop_at_success", "eval.stop_streak")
+        extend = [a for a in args if a.split("=", 1)[0].lstrip("+") in budget]
         return [exe, f"resume={run_dir}", *extend]
     return [exe, *args, f"hydra.run.dir={run_dir}"]
 
