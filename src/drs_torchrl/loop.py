@@ -266,10 +266,10 @@ def run_algorithm1(
                 if learner is not None:
                     learner.observe(batch, finished)  # DrS files them by stage; VICE-RAQ labels every state
                 updater.after_collect(n)
-                k = log.timed("update", updater.update, n, progress.frames, learner_step, log)
-                if k and sync_policy is not None:
+                n_updates = log.timed("update", updater.update, n, progress.frames, learner_step, log)
+                if n_updates and sync_policy is not None:
                     sync_policy()  # a background worker collects the next batch with the updated policy
-                log.frames, log.updates = log.frames + n, log.updates + k
+                log.frames, log.updates = log.frames + n, log.updates + n_updates
                 bar.update(n)
                 if log_at.due(progress.frames):
                     row = train_row()

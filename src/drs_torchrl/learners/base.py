@@ -121,9 +121,9 @@ class RewardLearner:
         """The learner's steps for this RL update. ``updates_per_rl_update`` may be fractional (0.5: one
         step every second RL update; 1.5: one and two in turn); the remainder carries to the next call."""
         self._owed_steps += self.updates_per_rl_update
-        k = int(self._owed_steps + 1e-9)
-        self._owed_steps -= k
-        return k
+        due = int(self._owed_steps + 1e-9)
+        self._owed_steps -= due
+        return due
 
     def _train_step(self, loss: torch.Tensor, optimizers: Sequence[torch.optim.Optimizer]) -> None:
         for opt in optimizers:

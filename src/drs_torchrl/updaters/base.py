@@ -53,9 +53,9 @@ class UpdateBudget:
 
     def take(self, frames: int) -> int:
         self.owed += frames * self.per_frame
-        k = int(self.owed)
-        self.owed -= k
-        return k
+        due = int(self.owed + 1e-9)  # 1/3 x 192 sums to 63.99999999: the update owed at an exact boundary is due
+        self.owed = max(self.owed - due, 0.0)
+        return due
 
 
 class Updater:

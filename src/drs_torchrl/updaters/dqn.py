@@ -103,15 +103,15 @@ class DQNUpdater(Updater):
     def update(self, frames: int, total_frames: int, learner_step: LearnerStep | None, log) -> int:
         if total_frames < self.learning_starts:
             return 0
-        k = self.budget.take(frames)
-        for _ in range(k):
+        n_updates = self.budget.take(frames)
+        for _ in range(n_updates):
             if learner_step is not None and not self.learner_after:
                 log.learner(learner_step())
             stats, rewards = self.step()
             log.update(stats, rewards)
             if learner_step is not None and self.learner_after:
                 log.learner(learner_step())
-        return k
+        return n_updates
 
     def step(self) -> tuple[TensorDict, torch.Tensor]:
         """One DQN update on a fresh batch; returns its statistics and the (one-step) rewards it trained on."""

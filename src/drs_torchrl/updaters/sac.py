@@ -97,13 +97,13 @@ class SACUpdater(Updater):
     def update(self, frames: int, total_frames: int, learner_step: LearnerStep | None, log) -> int:
         if total_frames < self.learning_starts or len(self.replay) < self.replay.batch_size:
             return 0
-        k = self.budget.take(frames)
-        for _ in range(k):
+        n_updates = self.budget.take(frames)
+        for _ in range(n_updates):
             if learner_step is not None:
                 log.learner(learner_step())
             stats, reward = self.step()
             log.update(stats, reward)
-        return k
+        return n_updates
 
     def step(self) -> tuple[TensorDict, torch.Tensor]:
         """One SAC update on a fresh batch; returns its statistics and the rewards it trained on."""
