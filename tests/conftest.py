@@ -34,13 +34,13 @@ def cli(monkeypatch, capsys):
         import importlib
 
         apps = {
-            "learn": "cli:learn_main",
-            "reuse": "cli:reuse_main",
-            "maze": "maze:main",
-            "quickstart": "quickstart:main",
+            "learn": "apps.cli:learn_main",
+            "reuse": "apps.cli:reuse_main",
+            "maze": "apps.maze:main",
+            "quickstart": "tools.quickstart:main",
         }
         module, name = apps[app].split(":")  # imported when called: drs-maze imports torch at module level
-        main = getattr(importlib.import_module(f"drs_torchrl.apps.{module}"), name)
+        main = getattr(importlib.import_module(f"drs_torchrl.{module}"), name)
         env, filters, streams = dict(os.environ), warnings.filters[:], (sys.stdout, sys.stderr)
         monkeypatch.setattr(sys, "argv", [f"drs-{app}", *args])
         code = 0

@@ -102,7 +102,7 @@ def test_a_policy_of_another_architecture_is_refused_for_fine_tuning():
 
 
 def test_an_unknown_normalisation_is_a_config_error():
-    from drs_torchrl.errors import ConfigError
+    from drs_torchrl.runtime.errors import ConfigError
 
     with pytest.raises(ConfigError, match="unknown normalisation 'batch'"):
         updater("sac_cpu", "algo.critic_norm=batch")

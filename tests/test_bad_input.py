@@ -7,7 +7,7 @@ from hydra import compose, initialize_config_dir
 from drs_torchrl.apps.cli import conf_dir
 from drs_torchrl.updaters.base import NonFiniteError
 from drs_torchrl.apps.build import Run
-from drs_torchrl.checkpoint import TrainingStateError
+from drs_torchrl.runtime.checkpoint import TrainingStateError
 from drs_torchrl.transforms import DrSReward
 from budgets import tiny
 

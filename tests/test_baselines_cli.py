@@ -156,7 +156,7 @@ def test_fine_tuning_starts_from_the_phase1_agent(tmp_path):
     """Sec. 5.4.2: init_from=RUN_DIR starts phase 2 from that run's actor, critics and entropy coefficient."""
     from omegaconf import OmegaConf
 
-    from drs_torchrl.errors import ConfigError
+    from drs_torchrl.runtime.errors import ConfigError
     from drs_torchrl.apps.build import Run
 
     learn = tmp_path / "learn"
@@ -205,7 +205,7 @@ def test_demonstrations_fill_a_share_of_every_sac_batch(tmp_path, demos):
 
     from drs_torchrl.demos import load_demos
     from drs_torchrl.apps.cli import conf_dir
-    from drs_torchrl.errors import ConfigError
+    from drs_torchrl.runtime.errors import ConfigError
     from drs_torchrl.apps.build import Run
 
     def cfg(*extra):
@@ -250,7 +250,7 @@ def test_demonstrations_in_the_sac_batch_only_leave_the_stage_buffers_to_the_age
     from hydra import compose, initialize_config_dir
 
     from drs_torchrl.apps.cli import conf_dir
-    from drs_torchrl.errors import ConfigError
+    from drs_torchrl.runtime.errors import ConfigError
     from drs_torchrl.apps.build import Run
 
     def cfg(*extra):

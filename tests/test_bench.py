@@ -4,13 +4,13 @@ import os
 
 import pytest
 
-from drs_torchrl.apps.bench import render_markdown, roofline
+from drs_torchrl.tools.bench import render_markdown, roofline
 
 
 def test_roofline_bound_is_the_core_time_formula(monkeypatch):
     # the formula given a GEMM rate: a fixed rate instead of timing GEMMs at every precision and core count
     # (110 s where bf16 is emulated and another test holds the second core); gemm_gflops itself runs in drs-bench
-    import drs_torchrl.apps.bench as bench
+    import drs_torchrl.tools.bench as bench
 
     monkeypatch.setattr(bench, "gemm_gflops", lambda batch, width, threads, dtype=None: 100.0 * threads)
     monkeypatch.setattr(os, "cpu_count", lambda: 2)
@@ -64,8 +64,8 @@ def test_roofline_bound_is_the_core_time_formula(monkeypatch):
 def test_fewer_updates_rows_are_compared_with_the_plain_loop_at_the_same_samples_per_step(monkeypatch):
     """A batch-512, UTD-0.25 config is compared with the plain loop at batch 256, UTD 0.5 (the same 128
     gradient samples per env step), and also with the plain loop given the same lever."""
-    import drs_torchrl.apps.bench as bench
-    from drs_torchrl.apps.bench import algo_settings, parse_algo
+    import drs_torchrl.tools.bench as bench
+    from drs_torchrl.tools.bench import algo_settings, parse_algo
 
     monkeypatch.setattr(bench, "gemm_gflops", lambda batch, width, threads, dtype=None: 100.0 * threads)
     monkeypatch.setattr(os, "cpu_count", lambda: 2)
@@ -132,7 +132,7 @@ def test_bench_console_is_free_of_library_notices(tmp_path):
     cmd = [
         sys.executable,
         "-c",
-        "import sys; from drs_torchrl.apps.bench import main; sys.exit(main())",
+        "import sys; from drs_torchrl.tools.bench import main; sys.exit(main())",
         "--raw-steps",
         "50",
         "--collect-steps",
@@ -174,7 +174,7 @@ def test_the_flop_count_runs_on_a_real_phase_1_run(tmp_path):
     """drs-bench's FLOP count of one SAC update reads the run's updater (a tiny real PickCube phase 1)."""
     from hydra import compose, initialize_config_dir
 
-    from drs_torchrl.apps.bench import sac_update_gflop
+    from drs_torchrl.tools.bench import sac_update_gflop
     from drs_torchrl.apps.build import Run
     from drs_torchrl.config_dir import conf_dir
 

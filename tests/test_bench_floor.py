@@ -4,7 +4,7 @@ worked out by hand from a fixed GEMM rate."""
 
 import pytest
 
-import drs_torchrl.apps.bench as bench
+import drs_torchrl.tools.bench as bench
 
 
 def test_floor_rows_by_hand(monkeypatch):

@@ -238,7 +238,7 @@ def test_drs_eval_refuses_a_video_path_that_is_a_file_before_any_episode(tmp_pat
 
 
 def test_drs_demos_never_replaces_a_folder_that_is_not_demonstrations(tmp_path, capsys):
-    from drs_torchrl.apps.demos import main
+    from drs_torchrl.tools.demos import main
 
     (tmp_path / "mine.txt").write_text("keep me")
     assert main(["--num", "1", "--out", str(tmp_path)]) == 2
@@ -249,7 +249,7 @@ def test_drs_demos_never_replaces_a_folder_that_is_not_demonstrations(tmp_path, 
 def test_drs_demos_replaces_demonstrations_only_when_told(tmp_path, capsys):
     """An earlier recording at --out is refused before any recording (pass --force); the default --out never
     replaces one: it takes the next free name."""
-    from drs_torchrl.apps.demos import main
+    from drs_torchrl.tools.demos import main
     from drs_torchrl.demos.store import free_demos_path
 
     kept = tmp_path / "pc.demos"
@@ -270,9 +270,9 @@ def test_drs_bench_collector_workers_filter_library_messages(tmp_path):
     """The background collector's worker process applies the console filter (ManiSkill's render-device and
     initial-pose warnings came from there); DRS_LIBRARY_MESSAGES=1 shows them again."""
     code = (
-        "import sys; from drs_torchrl.console import quiet_libraries, library_messages_requested\n"
+        "import sys; from drs_torchrl.runtime.console import quiet_libraries, library_messages_requested\n"
         "library_messages_requested() or quiet_libraries()\n"
-        "from drs_torchrl.apps.bench import bench_collect; from drs_torchrl.tasks import get_family\n"
+        "from drs_torchrl.tools.bench import bench_collect; from drs_torchrl.tasks import get_family\n"
         "print(bench_collect(get_family('pick_cube'), 64, 'background') > 0)"
     )
     env = {

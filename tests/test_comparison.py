@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drs_torchrl.apps.comparison import CompareError, compare, group_style, main
+from drs_torchrl.tools.comparison import CompareError, compare, group_style, main
 
 
 def make_run(root: Path, name: str, reward: str, seed: int, success: list[float], reach1: list[float], interval=1000):
@@ -78,7 +78,7 @@ def test_auc_and_first_step_past_half_have_known_values(tmp_path):
     a = make_run(tmp_path, "a", "drs", 0, [0.0, 0.4, 0.8, 1.0], [0, 0, 0, 0])
     b = make_run(tmp_path, "b", "drs", 1, [0.0, 0.8, 0.8], [0, 0, 0])
     c = make_run(tmp_path, "c", "sparse", 0, [0.2, 0.2, 0.2, 0.2], [0, 0, 0, 0])
-    from drs_torchrl.apps.comparison import group_runs, load_run, summary_rows
+    from drs_torchrl.tools.comparison import group_runs, load_run, summary_rows
 
     rows = {r["group"]: r for r in summary_rows(group_runs([load_run(x) for x in (a, b, c)]))}
     # every AUC runs to the shortest evaluated run of the comparison (3k), from the first evaluation (1k)
@@ -103,7 +103,7 @@ def test_a_run_with_one_evaluation_does_not_set_the_auc_horizon(tmp_path):
     a = make_run(tmp_path, "a", "drs", 0, [0.0, 0.4, 0.8, 1.0], [0, 0, 0, 0])
     b = make_run(tmp_path, "b", "sparse", 0, [0.2, 0.2, 0.2], [0, 0, 0])
     o = make_run(tmp_path, "o", "oril", 0, [0.0], [0.0])
-    from drs_torchrl.apps.comparison import group_runs, load_run, summary_rows
+    from drs_torchrl.tools.comparison import group_runs, load_run, summary_rows
 
     rows = {r["group"]: r for r in summary_rows(group_runs([load_run(x) for x in (a, b, o)]))}
     assert rows["drs"]["auc_horizon"] == 3000
@@ -134,7 +134,7 @@ def test_training_table_gives_the_first_step_each_stage_passes_half(tmp_path):
 def test_first_step_counts_only_steps_every_seed_reached(tmp_path):
     a = make_run(tmp_path, "a", "drs", 0, [0.0, 0.2, 1.0], [0, 0, 0])
     b = make_run(tmp_path, "b", "drs", 1, [0.0, 0.2], [0, 0])  # interrupted before 3k
-    from drs_torchrl.apps.comparison import first_step_over, load_run
+    from drs_torchrl.tools.comparison import first_step_over, load_run
 
     assert first_step_over([load_run(a), load_run(b)]) is None  # a alone passes at 3k: not the group's mean
     assert first_step_over([load_run(a)]) == 3000

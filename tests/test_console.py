@@ -23,7 +23,8 @@ import pytest
 )
 def test_a_count_of_zero_is_refused_naming_the_option(module, argv, message, capsys, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    main = importlib.import_module(f"drs_torchrl.apps.{module}").main
+    package = "apps" if module == "evaluate" else "tools"  # the training path's apps, the tools built on them
+    main = importlib.import_module(f"drs_torchrl.{package}.{module}").main
     with pytest.raises(SystemExit) as e:
         main(argv)
     assert e.value.code == 2
@@ -34,7 +35,7 @@ def test_a_count_of_zero_is_refused_naming_the_option(module, argv, message, cap
 
 def test_drs_plot_reward_episode_refuses_more_than_one_run(capsys):
     """It draws the first run's episode only; the others had been ignored without a word."""
-    from drs_torchrl.apps.reporting import main
+    from drs_torchrl.tools.reporting import main
 
     with pytest.raises(SystemExit) as e:
         main(["a", "b", "--reward-episode"])

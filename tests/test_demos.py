@@ -182,7 +182,7 @@ def test_a_replace_stopped_between_its_renames_loses_nothing_and_load_names_both
 
 
 def test_drs_demos_names_what_a_stopped_save_left_beside_its_out_and_keeps_it(tmp_path, monkeypatch, capsys):
-    from drs_torchrl.apps import demos as app
+    from drs_torchrl.tools import demos as app
 
     out = tmp_path / "my.demos"
     left = save_demos(*fake_demos(5), tmp_path / "x.demos").rename(tmp_path / f"my.demos.tmp-{a_dead_pid()}")
@@ -194,7 +194,7 @@ def test_drs_demos_names_what_a_stopped_save_left_beside_its_out_and_keeps_it(tm
 
 def test_drs_demos_out_keeps_demonstrations_another_process_wrote_meanwhile(tmp_path, monkeypatch, capsys):
     """The repro: drs-demos --out X while another drs-demos writes X; the second exits 2, both recordings kept."""
-    from drs_torchrl.apps import demos as app
+    from drs_torchrl.tools import demos as app
 
     out = tmp_path / "dd" / "my.demos"
 
@@ -263,7 +263,7 @@ def maniskill_h5(tmp_path_factory):
 def test_maniskill_h5_converts_to_demos_matching_the_recording(maniskill_h5, pick_cube, tmp_path):
     import h5py
 
-    from drs_torchrl.apps.demos import main
+    from drs_torchrl.tools.demos import main
     from drs_torchrl.demos import load_maniskill_h5
 
     states, meta = load_maniskill_h5(maniskill_h5, pick_cube, "cube_2cm", progress=False)
@@ -298,7 +298,7 @@ def test_maniskill_h5_converts_to_demos_matching_the_recording(maniskill_h5, pic
 def test_maniskill_h5_errors_name_the_problem(maniskill_h5, pick_cube, tmp_path, capsys):
     import shutil
 
-    from drs_torchrl.apps.demos import main
+    from drs_torchrl.tools.demos import main
     from drs_torchrl.demos import load_maniskill_h5
     from drs_torchrl.tasks import get_family
 
@@ -403,7 +403,7 @@ def test_a_policy_records_demos_of_its_successful_episodes(tmp_path):
 
 @pytest.mark.sim
 def test_policy_demo_errors_name_the_problem(tmp_path, capsys):
-    from drs_torchrl.apps.demos import main
+    from drs_torchrl.tools.demos import main
     from drs_torchrl.demos import record_policy_demos
     from drs_torchrl.models import PolicyCheckpointError
 

@@ -140,7 +140,7 @@ def test_reward_probe_reports_every_stage_with_a_rank_correlation(trained, tmp_p
         [
             sys.executable,
             "-m",
-            "drs_torchrl.apps.probe",
+            "drs_torchrl.tools.probe",
             "--reward",
             str(tmp_path / "constant.pt"),
             "--policy",
@@ -180,7 +180,7 @@ def test_reward_probe_labels_stages_with_a_variant_override_that_reaches_the_env
             [
                 sys.executable,
                 "-m",
-                "drs_torchrl.apps.probe",
+                "drs_torchrl.tools.probe",
                 "--reward",
                 str(trained / "checkpoints" / "reward.pt"),
                 "--policy",
@@ -210,7 +210,7 @@ def test_reward_probe_labels_stages_with_a_variant_override_that_reaches_the_env
 
 
 def test_spearman_of_the_probe_ranks_and_refuses_degenerate_inputs():
-    from drs_torchrl.apps.probe import spearman
+    from drs_torchrl.tools.probe import spearman
 
     import numpy as np
 
@@ -222,7 +222,7 @@ def test_spearman_of_the_probe_ranks_and_refuses_degenerate_inputs():
 def test_feature_swap_finds_the_inputs_a_score_reads():
     """A score that reads column 2 only: swapping that group moves each side to the other's level, the rest do nothing."""
     import torch
-    from drs_torchrl.apps.probe import feature_swap
+    from drs_torchrl.tools.probe import feature_swap
 
     fa, fb = torch.zeros(50, 4), torch.zeros(40, 4)
     fa[:, 2], fb[:, 2] = 1.0, -1.0
@@ -243,7 +243,7 @@ def test_feature_swap_finds_the_inputs_a_score_reads():
 
 
 def test_feature_groups_name_every_column_of_the_pick_reward_input():
-    from drs_torchrl.apps.probe import feature_groups
+    from drs_torchrl.tools.probe import feature_groups
 
     from drs_torchrl.tasks import get_family
     from drs_torchrl.transforms import DrSReward

@@ -33,7 +33,7 @@ def test_the_budget_rule():
 
 
 def test_the_generated_study_files_are_valid_studies(tmp_path):
-    from drs_torchrl.apps.study import load_study
+    from drs_torchrl.tools.study import load_study
 
     ms = module("make_studies")
     f = tmp_path / "study.yaml"

@@ -764,7 +764,7 @@ def test_a_refused_drs_maze_keeps_the_runs_hydra_record_and_a_replacing_one_take
         [
             sys.executable,
             "-c",
-            f"import time; from drs_torchrl.rundir import lock_run_dir; lock_run_dir({str(busy)!r}); "
+            f"import time; from drs_torchrl.runtime.rundir import lock_run_dir; lock_run_dir({str(busy)!r}); "
             "print('locked', flush=True); time.sleep(120)",
         ],
         stdout=subprocess.PIPE,

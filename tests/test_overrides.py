@@ -10,7 +10,7 @@ from drs_torchrl.apps import cli  # noqa: F401 (registers the configs' resolvers
 from drs_torchrl.apps.maze import MazeConfigError
 from drs_torchrl.apps.overrides import check_added_settings, check_constructor_arguments
 from drs_torchrl.config_dir import conf_dir
-from drs_torchrl.errors import ConfigError
+from drs_torchrl.runtime.errors import ConfigError
 
 
 def checked(app, *overrides, error=ConfigError):

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from hydra import compose, initialize_config_dir
 
-from drs_torchrl.apps.quickstart import QuickstartError, plan, prepare_out
+from drs_torchrl.tools.quickstart import QuickstartError, plan, prepare_out
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = (
@@ -25,7 +25,7 @@ TINY = (
 
 def _cmd(out: Path, *overrides: str) -> list[str]:
     exe = Path(sys.executable).parent / "drs-quickstart"
-    base = [str(exe)] if exe.exists() else [sys.executable, "-m", "drs_torchrl.apps.quickstart"]
+    base = [str(exe)] if exe.exists() else [sys.executable, "-m", "drs_torchrl.tools.quickstart"]
     return [*base, f"out={out}", "total_frames=1024", "baselines=[sparse]", TINY, *overrides]
 
 
@@ -114,7 +114,7 @@ def test_a_refused_quickstart_removes_only_the_folder_it_made(cli, tmp_path):
 def test_an_unfinished_run_still_written_by_a_process_is_not_deleted(tmp_path):
     """A re-run deletes an unfinished run's folder to start it again, but not while a process still writes it (a run
     left behind by a quickstart killed outright): the run's own lock names it."""
-    from drs_torchrl.apps.quickstart import remove_run
+    from drs_torchrl.tools.quickstart import remove_run
 
     held, free = tmp_path / "learn", tmp_path / "reuse-sparse"
     free.mkdir()
@@ -125,7 +125,7 @@ def test_an_unfinished_run_still_written_by_a_process_is_not_deleted(tmp_path):
         [
             sys.executable,
             "-c",
-            "import sys, time; from drs_torchrl.rundir import lock_run_dir; "
+            "import sys, time; from drs_torchrl.runtime.rundir import lock_run_dir; "
             f"lock_run_dir({str(held)!r}); print('locked', flush=True); time.sleep(60)",
         ],
         stdout=subprocess.PIPE,
@@ -147,7 +147,7 @@ def test_an_unfinished_run_still_written_by_a_process_is_not_deleted(tmp_path):
 
 
 def test_progress_prints_one_line_per_evaluation_without_a_terminal(capsys):
-    from drs_torchrl.apps.quickstart import Job, Progress
+    from drs_torchrl.tools.quickstart import Job, Progress
 
     p = Progress(1000, None)  # pytest's captured stdout is no terminal: lines, not bars
     assert p.bars is False
@@ -191,7 +191,7 @@ def test_the_record_printed_under_every_summary_is_the_committed_runs():
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from drs_torchrl.apps.quickstart import spread_text
+    from drs_torchrl.tools.quickstart import spread_text
     from drs_torchrl.config_dir import conf_dir
 
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):

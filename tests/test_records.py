@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from drs_torchrl.apps.study import REWARD_PIN, RecordError, pinned_reward, sha256_file
+from drs_torchrl.tools.study import REWARD_PIN, RecordError, pinned_reward, sha256_file
 
 REPO = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
@@ -153,7 +153,7 @@ def _run_dir(d: Path, phase: str, checkpoint: str | None = None):
 
 def test_report_pins_the_reward_a_reuse_run_reused_in_its_record(tmp_path, monkeypatch, capsys):
     """A reuse run listed before the phase-1 run it reused; one reusing a committed reward; one whose reward is nowhere."""
-    from drs_torchrl.apps.study import main
+    from drs_torchrl.tools.study import main
 
     monkeypatch.chdir(tmp_path)  # the repository root, where studies run: the pins are relative to it
     committed = tmp_path / "results" / "shared" / "reward.pt"

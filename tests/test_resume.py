@@ -54,7 +54,7 @@ def test_sigkill_then_resume_continues_from_the_saved_step(tmp_path):
         if proc.poll() is None:
             proc.kill()
     from drs_torchrl.apps.build import Run
-    from drs_torchrl.checkpoint import find_training_state
+    from drs_torchrl.runtime.checkpoint import find_training_state
 
     state_dir = find_training_state(run_dir)
     saved_frames = int((state_dir / "COMPLETE").read_text())
@@ -251,7 +251,7 @@ def test_stop_at_success_ends_phase_1_as_finished_and_a_resume_can_ask_for_it(tm
     """``stop_at_success``: once the training success over a full episode window reaches it, the run
     ends with its final evaluation and saves, finished (not interrupted), short of total_frames; a run
     started before the key existed takes it on resume. (Threshold 0 so that a tiny run reaches it.)"""
-    from drs_torchrl.apps.study import run_state
+    from drs_torchrl.tools.study import run_state
 
     env = dict(os.environ, PYTHONWARNINGS="ignore")
     run_dir = tmp_path / "run"
@@ -292,7 +292,7 @@ def test_stop_at_success_ends_phase_1_as_finished_and_a_resume_can_ask_for_it(tm
 def test_eval_stop_at_success_ends_a_reuse_run_as_finished_at_the_evaluation_that_reached_it(tmp_path):
     """``eval.stop_at_success``: a run ends (finished, saved) at the evaluation that completes the streak, short of
     total_frames, and a study does not resume it. (Threshold 0 so that the first evaluation reaches it.)"""
-    from drs_torchrl.apps.study import run_state
+    from drs_torchrl.tools.study import run_state
 
     run_dir = tmp_path / "run"
     args = [

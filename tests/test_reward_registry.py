@@ -103,7 +103,7 @@ def test_a_reused_drs_reward_is_used_as_it_was_learned(tmp_path):
     """drs-reuse takes Eq. 4's formula, alpha, offset, inputs and networks from the checkpoint: an override that
     says otherwise is refused, and a config that differs without one is made to say what the run uses."""
     from drs_torchrl.apps.cli import check_reused_reward_overrides
-    from drs_torchrl.errors import ConfigError
+    from drs_torchrl.runtime.errors import ConfigError
     from drs_torchrl.rewards import take_frozen_settings
     from drs_torchrl.transforms import DrSReward
 

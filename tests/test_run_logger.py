@@ -9,7 +9,7 @@ import math
 import pytest
 from torchrl.record.loggers import Logger
 
-from drs_torchrl.run_logger import LoggerConfigError, ResumableTensorboardLogger, RunLogger, WideCSVLogger
+from drs_torchrl.runtime.run_logger import LoggerConfigError, ResumableTensorboardLogger, RunLogger, WideCSVLogger
 
 
 def rows(path):
@@ -73,7 +73,7 @@ def test_run_logger_fans_out_to_tensorboard_and_keeps_nan_in_csv_only(tmp_path):
 
 
 def test_wandb_without_the_package_is_a_config_error(monkeypatch):
-    from drs_torchrl.errors import ConfigError
+    from drs_torchrl.runtime.errors import ConfigError
     from drs_torchrl.apps.validation import validate_config
 
     real = importlib.util.find_spec

@@ -14,11 +14,13 @@ from pathlib import Path
 
 import pytest
 
-from drs_torchrl.console import UserError, console_script, library_prints, one_line, report_failure
-from drs_torchrl.rundir import LOCK_NAME, check_writable, lock_run_dir, unlock_run_dir
+from drs_torchrl.runtime.console import UserError, console_script, library_prints, one_line, report_failure
+from drs_torchrl.runtime.rundir import LOCK_NAME, check_writable, lock_run_dir, unlock_run_dir
 
 REPO = Path(__file__).resolve().parents[1]
-LOCK_IN_CHILD = "import sys; from drs_torchrl.rundir import lock_run_dir; lock_run_dir(sys.argv[1]); print('locked')"
+LOCK_IN_CHILD = (
+    "import sys; from drs_torchrl.runtime.rundir import lock_run_dir; lock_run_dir(sys.argv[1]); print('locked')"
+)
 
 
 def test_a_second_process_is_refused_naming_the_holder_until_it_lets_go(tmp_path):
@@ -65,8 +67,8 @@ def test_a_failed_start_removes_a_directory_that_holds_only_its_lock(tmp_path):
 def test_the_lock_file_is_not_a_run_file(tmp_path):
     """A directory holding only the lock is fresh for drs-learn and drs-quickstart, and drs-study --report
     copies only named files."""
-    from drs_torchrl.apps.quickstart import Job, prepare_out
-    from drs_torchrl.apps.study import load_study, report
+    from drs_torchrl.tools.quickstart import Job, prepare_out
+    from drs_torchrl.tools.study import load_study, report
     from drs_torchrl.apps.cli import check_fresh_run_dir
 
     fresh = tmp_path / "fresh"
@@ -160,8 +162,8 @@ def test_a_full_disk_is_one_error_and_leaves_no_partial_files(tmp_path):
         from tensordict import TensorDict
         from torchrl.data import LazyTensorStorage, ReplayBuffer
         from drs_torchrl.data.persistence import dump_buffer
-        from drs_torchrl.rundir import DiskFullError
-        from drs_torchrl.checkpoint import atomic_torch_save, atomic_write_text
+        from drs_torchrl.runtime.rundir import DiskFullError
+        from drs_torchrl.runtime.checkpoint import atomic_torch_save, atomic_write_text
 
         d, res = Path(sys.argv[1]), {}
         rb = ReplayBuffer(storage=LazyTensorStorage(1000))
@@ -256,8 +258,8 @@ def test_library_prints_are_counted_not_shown(capsys, monkeypatch):
 def test_saved_files_reach_the_disk_before_anything_vouches_for_them(tmp_path, monkeypatch):
     """A machine crash (power, kernel) loses what is only in the page cache: the training state is flushed before
     its COMPLETE marker is written, the marker before the swap, the swap before the fallback state is deleted."""
-    import drs_torchrl.checkpoint as ck
-    from drs_torchrl.rundir import fsync_tree
+    import drs_torchrl.runtime.checkpoint as ck
+    from drs_torchrl.runtime.rundir import fsync_tree
 
     (tmp_path / "tree" / "sub").mkdir(parents=True)
     (tmp_path / "tree" / "sub" / "f").write_text("x")
@@ -292,7 +294,7 @@ def test_saved_files_reach_the_disk_before_anything_vouches_for_them(tmp_path, m
     assert not (tmp_path / "run" / "checkpoints" / "state.old").exists()
 
 
-@pytest.mark.parametrize("app", ["evaluate", "reporting", "comparison"])
+@pytest.mark.parametrize("app", ["apps.evaluate", "tools.reporting", "tools.comparison"])
 def test_a_maze_run_given_to_a_maniskill_command_is_named_as_one(app, tmp_path, capsys):
     """drs-eval had called a drs-maze run's config "damaged", drs-plot failed with 'reward_min', drs-compare tabled it
     beside ManiSkill runs as "no eval yet"."""
@@ -301,7 +303,7 @@ def test_a_maze_run_given_to_a_maniskill_command_is_named_as_one(app, tmp_path, 
     maze = tmp_path / "learn"
     shutil.copytree(REPO / "results/quickstart/seed1/learn", maze)  # a committed drs-quickstart run
     before = {p.name: p.read_bytes() for p in maze.iterdir() if p.is_file()}
-    main = importlib.import_module(f"drs_torchrl.apps.{app}").main
+    main = importlib.import_module(f"drs_torchrl.{app}").main
     try:
         code = main([str(maze)])
     except SystemExit as e:  # the console wrapper's exit for a UserError

@@ -13,7 +13,7 @@ import torch
 from omegaconf import OmegaConf
 from tensordict import NonTensorData, TensorDict
 
-from drs_torchrl.safe_files import UnsafeFileError, allowed_target, check_targets, convert_file, torch_load
+from drs_torchrl.runtime.safe_files import UnsafeFileError, allowed_target, check_targets, convert_file, torch_load
 
 REPO = Path(__file__).resolve().parents[1]
 RECORD = REPO / "results" / "recipe" / "stack_cube" / "run_files" / "learn_s0"  # a committed phase-1 run
@@ -51,7 +51,7 @@ def one_line_refusal(exc: BaseException, path: Path) -> None:
 
 @pytest.mark.parametrize("what", ["policy", "reward", "state", "sampler"])
 def test_every_loader_refuses_a_crafted_pickle_and_runs_nothing(tmp_path, what):
-    from drs_torchrl.checkpoint import Checkpointer
+    from drs_torchrl.runtime.checkpoint import Checkpointer
     from drs_torchrl.data.persistence import dump_buffer, load_buffer
     from drs_torchrl.models import read_policy_checkpoint
     from drs_torchrl.transforms.reward import read_reward_checkpoint
@@ -98,7 +98,7 @@ def test_a_saved_tensordict_with_a_pickle_sidecar_is_refused(tmp_path):
 
 
 def test_training_state_rng_is_plain_and_round_trips(tmp_path):
-    from drs_torchrl.checkpoint import rng_state, set_rng_state
+    from drs_torchrl.runtime.checkpoint import rng_state, set_rng_state
 
     np.random.seed(3)
     np.random.normal()  # a cached gaussian in the state
@@ -121,8 +121,8 @@ def test_training_state_rng_is_plain_and_round_trips(tmp_path):
         ("torch.load", False),
         ("torch.hub.load", False),
         ("tensordict.TensorDict.load_memmap", False),
-        ("drs_torchrl.safe_files.convert_file", False),
-        ("drs_torchrl.apps.study.main", False),
+        ("drs_torchrl.runtime.safe_files.convert_file", False),
+        ("drs_torchrl.tools.study.main", False),
         ("torch.nn.Module.load_state_dict", False),
         ("torch.optim.${oc.env:X}", False),
         ("torch.optim._private", False),
@@ -213,8 +213,8 @@ def test_resume_refuses_a_crafted_training_state_with_exit_2(tmp_path, cli):
 
 
 def test_drs_convert_rewrites_a_trusted_state_of_an_earlier_version(tmp_path, capsys):
-    from drs_torchrl.checkpoint import rng_state
-    from drs_torchrl.safe_files import main as drs_convert
+    from drs_torchrl.runtime.checkpoint import rng_state
+    from drs_torchrl.runtime.safe_files import main as drs_convert
 
     old_rng = {**rng_state(), "numpy": np.random.get_state()}  # how versions before 0.2 saved it (an ndarray)
     f = tmp_path / "trainer.pt"
@@ -237,7 +237,7 @@ def test_drs_convert_rewrites_a_trusted_state_of_an_earlier_version(tmp_path, ca
 
 def test_old_rng_form_still_resumes_after_conversion(tmp_path):
     """A converted state's numpy RNG (a tuple holding an int64 tensor) is what set_rng_state restores."""
-    from drs_torchrl.checkpoint import set_rng_state
+    from drs_torchrl.runtime.checkpoint import set_rng_state
 
     np.random.seed(5)
     old = np.random.get_state()
@@ -267,7 +267,11 @@ def test_drs_eval_does_not_write_into_a_run_another_process_holds(tmp_path, caps
 
     run = _run_copy(tmp_path)
     holder = subprocess.Popen(
-        [sys.executable, "-c", f"from drs_torchrl.rundir import lock_run_dir; lock_run_dir({str(run)!r}); input()"],
+        [
+            sys.executable,
+            "-c",
+            f"from drs_torchrl.runtime.rundir import lock_run_dir; lock_run_dir({str(run)!r}); input()",
+        ],
         stdin=subprocess.PIPE,
         env={**os.environ, "PYTHONPATH": str(REPO / "src")},
     )

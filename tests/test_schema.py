@@ -12,7 +12,7 @@ from drs_torchrl.apps.maze import MazeConfigError, validate
 from drs_torchrl.apps.schema import MazeSchema, RunSchema, check, setting
 from drs_torchrl.apps.validation import validate_config
 from drs_torchrl.config_dir import conf_dir
-from drs_torchrl.errors import ConfigError
+from drs_torchrl.runtime.errors import ConfigError
 
 
 def composed(name, *overrides):

@@ -32,7 +32,7 @@ def test_budgets_give_every_candidate_the_controls_minutes(sel):
 
 
 def test_the_study_files_are_valid_studies_with_the_protocols_settings(sel, tmp_path):
-    from drs_torchrl.apps.study import load_study
+    from drs_torchrl.tools.study import load_study
 
     for round_name, cands, n in (("round1", list(sel.CANDIDATES), 15), ("round2", ["crossq", "sac_cpu"], 12)):
         f = tmp_path / round_name / "study.yaml"

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from drs_torchrl.apps.study import StudyError, load_study, run_state
+from drs_torchrl.tools.study import StudyError, load_study, run_state
 from budgets import tiny
 
 BIN = Path(sys.executable).parent
@@ -136,7 +136,7 @@ def test_run_state_tells_finished_interrupted_and_broken_runs_apart(tmp_path):
 
 
 def test_a_resumed_run_keeps_the_study_files_budget_and_stopping_rules(tmp_path):
-    from drs_torchrl.apps.study import Run, command
+    from drs_torchrl.tools.study import Run, command
 
     run = Run(
         name="a", app="reuse", args=["seed=0", "total_frames=9", "eval.stop_at_success=0.8", "+eval.stop_streak=2"]
@@ -201,7 +201,7 @@ def _fake_run(
 
 
 def test_report_copies_the_record_and_compares_by_run_name(tmp_path, capsys):
-    from drs_torchrl.apps.study import group_name, main
+    from drs_torchrl.tools.study import group_name, main
 
     assert [
         group_name(n)
@@ -275,7 +275,7 @@ def test_report_copies_the_record_and_compares_by_run_name(tmp_path, capsys):
 
 def test_report_draws_the_study_files_figures_with_their_groups_order_and_labels(tmp_path, capsys):
     """A study of many groups names curated figures: only their groups, in their order, with display labels."""
-    from drs_torchrl.apps.study import main
+    from drs_torchrl.tools.study import main
 
     root = tmp_path / "runs"
     study = write(
@@ -321,7 +321,7 @@ def test_a_fresh_checkout_skips_what_its_record_holds_and_reuses_its_rewards(tmp
     """Training states are not committed: a run whose directory is gone but whose committed record says
     it finished is ``recorded`` (skipped, satisfies ``needs``), ``<reward:NAME>`` falls back to the
     record's reward.pt, and a report keeps the record instead of calling the run new."""
-    from drs_torchrl.apps.study import load_record, main, resolve_args, study_state
+    from drs_torchrl.tools.study import load_record, main, resolve_args, study_state
 
     root, out = tmp_path / "runs", tmp_path / "results"
     study = write(
@@ -392,7 +392,7 @@ def test_a_fresh_checkout_skips_what_its_record_holds_and_reuses_its_rewards(tmp
 
 
 def test_a_run_another_study_call_is_training_is_neither_restarted_nor_deleted(tmp_path, capsys):
-    from drs_torchrl.apps.study import main, pid_file
+    from drs_torchrl.tools.study import main, pid_file
 
     root = tmp_path / "runs"
     f = write(tmp_path, {"root": str(root), "runs": [{"name": "a", "args": ["total_frames=1000"]}]})
@@ -427,7 +427,7 @@ def test_a_run_another_study_call_is_training_is_neither_restarted_nor_deleted(t
 def test_a_run_started_elsewhere_after_the_study_looked_is_left_alone(tmp_path, capsys, monkeypatch):
     """Between reading the states and starting a run, another process may have started it (another study call,
     or drs-learn by hand into the run's directory, which holds its lock): it is skipped, not deleted as broken."""
-    from drs_torchrl.apps import study
+    from drs_torchrl.tools import study
 
     root = tmp_path / "runs"
     f = write(tmp_path, {"root": str(root), "runs": [{"name": "a", "args": ["total_frames=1000"]}]})
@@ -437,7 +437,7 @@ def test_a_run_started_elsewhere_after_the_study_looked_is_left_alone(tmp_path, 
         state = real_state(root_, record, run)
         if holder:
             return state
-        script = f"from drs_torchrl.rundir import lock_run_dir; lock_run_dir({str(root / 'a')!r}); "
+        script = f"from drs_torchrl.runtime.rundir import lock_run_dir; lock_run_dir({str(root / 'a')!r}); "
         script += f"open({str(root / 'a' / 'train.csv')!r}, 'w').write('step\\n'); print('locked', flush=True); "
         script += "import time; time.sleep(60)"
         holder.append(subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True))
@@ -476,7 +476,7 @@ def test_a_reward_reference_must_be_among_the_runs_needs(tmp_path):
 
 
 def test_a_run_with_a_bad_override_or_missing_file_stops_the_study_before_anything_starts(tmp_path, capsys):
-    from drs_torchrl.apps.study import main
+    from drs_torchrl.tools.study import main
 
     good = {"name": "ok", "args": ["total_frames=1000"]}
     reuse = {"name": "reuse", "app": "reuse", "args": ["reward=drs", "reward.checkpoint=<reward:ok>"], "needs": ["ok"]}
@@ -526,7 +526,7 @@ def test_a_run_with_a_bad_override_or_missing_file_stops_the_study_before_anythi
 def test_status_counts_the_env_steps_and_hours_a_study_has_left(tmp_path, capsys):
     """What is left: the unfinished part of a resumable run, every step of a new one, nothing of a finished
     one, timed at the speed the run directories logged (a fresh checkout: the record's summaries)."""
-    from drs_torchrl.apps.study import main, work_left
+    from drs_torchrl.tools.study import main, work_left
 
     root, out = tmp_path / "runs", tmp_path / "results"
     study = write(
@@ -595,7 +595,7 @@ def test_status_counts_the_env_steps_and_hours_a_study_has_left(tmp_path, capsys
 
 def test_every_committed_study_file_loads_with_its_figures():
     """The study files the README points at parse, name their runs' needs and draw only groups they define."""
-    from drs_torchrl.apps.study import load_figures
+    from drs_torchrl.tools.study import load_figures
 
     files = sorted((Path(__file__).parents[1] / "results").rglob("study.yaml"))
     assert len(files) >= 2

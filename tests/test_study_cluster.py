@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from drs_torchrl.apps import study_cluster as sc
-from drs_torchrl.apps.study import StudyError, load_cluster, load_study, main, run_state
+from drs_torchrl.tools import study_cluster as sc
+from drs_torchrl.tools.study import StudyError, load_cluster, load_study, main, run_state
 from budgets import tiny
 
 BIN = Path(sys.executable).parent

@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf
 
-from drs_torchrl.errors import ConfigError, UserError
+from drs_torchrl.runtime.errors import ConfigError, UserError
 from drs_torchrl.tasks import family_from_config, get_family, list_families
 
 CONF = Path(__file__).resolve().parents[1] / "conf"

@@ -13,7 +13,7 @@ from tensordict import TensorDict
 from torchrl.data import Bounded, Composite, LazyTensorStorage, OneHot, ReplayBuffer, Unbounded
 from torchrl.objectives import HardUpdate, SACLoss, SoftUpdate
 
-from drs_torchrl.checkpoint import TrainingStateError
+from drs_torchrl.runtime.checkpoint import TrainingStateError
 from drs_torchrl.models import load_policy
 from drs_torchrl.apps.cli import conf_dir
 from drs_torchrl.apps.build import Run

@@ -188,7 +188,11 @@ def eval_beside_a_writer(case: Case, d: Path) -> tuple[int, str, bool]:
     run = d / "good"
     before = digest(run)
     holder = subprocess.Popen(
-        [sys.executable, "-c", f"from drs_torchrl.rundir import lock_run_dir; lock_run_dir({str(run)!r}); input()"],
+        [
+            sys.executable,
+            "-c",
+            f"from drs_torchrl.runtime.rundir import lock_run_dir; lock_run_dir({str(run)!r}); input()",
+        ],
         stdin=subprocess.PIPE,
         env=dict(os.environ, PYTHONPATH=str(ROOT / "src")),
     )

@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "src"))
 
 
-def build(fused: bool, vmap: bool):
+def build(fused: bool, vmap: bool, hidden: int = 256):
     from tensordict import TensorDict
     from torchrl.data import Bounded, Composite, LazyTensorStorage, ReplayBuffer, Unbounded
     from torchrl.objectives import SACLoss, SoftUpdate
@@ -53,7 +53,7 @@ def build(fused: bool, vmap: bool):
     loss = functools.partial(SACLoss, num_qvalue_nets=2, loss_function="l2", alpha_init=1.0, deactivate_vmap=not vmap)
     return make_sac_updater(
         Env(), rb, loss=loss, optim=functools.partial(torch.optim.Adam, lr=3e-4, fused=fused),
-        target_update=functools.partial(SoftUpdate, tau=0.005), hidden=[256, 256, 256],
+        target_update=functools.partial(SoftUpdate, tau=0.005), hidden=[hidden] * 3,
         policy_in_keys=["observation", "stage_indicators"], gamma=0.8, utd=0.5, learning_starts=0,
     )  # fmt: skip
 
@@ -128,7 +128,7 @@ def main() -> int:
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "compile_probe")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
-    from drs_torchrl.console import quiet_libraries
+    from drs_torchrl.runtime.console import quiet_libraries
 
     quiet_libraries()
     cpu = next((ln.split(":", 1)[1].strip() for ln in open("/proc/cpuinfo") if ln.startswith("model name")), "?")

@@ -8,7 +8,7 @@ main=$(cd "$(dirname "$0")/../.." && pwd)
 wt=$(cd "${1:-$main/../ft-wt}" && pwd)
 finished() {
   "$main/.venv/bin/python" -c 'import sys, pathlib
-from drs_torchrl.apps.study import run_state
+from drs_torchrl.tools.study import run_state
 sys.exit(run_state(pathlib.Path(sys.argv[1])) != "finished")' "$1"
 }
 for s in calibration stack_cube place_sphere; do

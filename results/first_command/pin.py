@@ -11,7 +11,7 @@ from pathlib import Path
 
 import yaml
 
-from drs_torchrl.apps.study import pin_reward, sha256_file
+from drs_torchrl.tools.study import pin_reward, sha256_file
 
 
 def main(worktree: Path, run_root: str, record: Path) -> None:

@@ -11,7 +11,7 @@ wt=$(cd "${1:?usage: results/recipe/collect.sh STUDY_WORKTREE}" && pwd)
 main=$(cd "$(dirname "$0")/../.." && pwd)
 finished() {  # the study's own rule: summary.json not interrupted, at its frames (or stopped at success)
   "$main/.venv/bin/python" -c 'import sys, pathlib
-from drs_torchrl.apps.study import run_state
+from drs_torchrl.tools.study import run_state
 sys.exit(run_state(pathlib.Path(sys.argv[1])) != "finished")' "$1"
 }
 for f in stack_cube place_sphere; do

@@ -22,7 +22,7 @@ import pandas as pd
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "src"))
-from drs_torchrl.apps.comparison import success_auc  # noqa: E402
+from drs_torchrl.tools.comparison import success_auc  # noqa: E402
 
 HORIZON, MARGIN, WORKS_AT = 300_000, 0.2, 0.5
 # successes are multiples of 1/20 and their means floats: a difference of exactly 0.2 may compute as 0.19999999999999998

@@ -114,14 +114,14 @@ def main() -> int:
     ap.add_argument("--child", type=Path, help=argparse.SUPPRESS)
     a = ap.parse_args()
     torch.set_num_threads(1)
-    from drs_torchrl.console import quiet_libraries
+    from drs_torchrl.runtime.console import quiet_libraries
 
     quiet_libraries()
     if a.child:
         child(a.child, a.transitions)
         return 0
     from drs_torchrl.apps.build import Run
-    from drs_torchrl.checkpoint import find_training_state
+    from drs_torchrl.runtime.checkpoint import find_training_state
 
     res: dict = {
         "command": " ".join(["results/reliability/soak.py", *sys.argv[1:]]),

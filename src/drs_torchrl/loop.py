@@ -25,7 +25,7 @@ from torchrl import timeit
 from tqdm.auto import tqdm
 
 from drs_torchrl.data import TrajectoryAssembler
-from drs_torchrl.signals import StopRequest
+from drs_torchrl.runtime.signals import StopRequest
 from drs_torchrl.updaters.base import NonFiniteError, Updater, check_finite
 
 

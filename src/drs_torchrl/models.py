@@ -10,8 +10,8 @@ from tensordict.nn import NormalParamExtractor, TensorDictModule, TensorDictSequ
 from torch import nn
 from torchrl.modules import MLP, BatchRenorm1d, ProbabilisticActor, TanhNormal, ValueOperator
 
-from drs_torchrl.errors import ConfigError, UserError
-from drs_torchrl.safe_files import UnsafeFileError, torch_load
+from drs_torchrl.runtime.errors import ConfigError, UserError
+from drs_torchrl.runtime.safe_files import UnsafeFileError, torch_load
 from drs_torchrl.precision import OutputFloat32
 
 POLICY_FORMAT = "drs-torchrl/policy"  # checkpoints/policy.pt of drs-learn / drs-reuse runs
@@ -154,7 +154,7 @@ def read_policy_checkpoint(path: str | Path) -> tuple[Path, dict]:
             f"{file}: cannot be read as a torch file ({exc.__class__.__name__}: {exc})"
         ) from exc
     if not isinstance(ck, dict) or ck.get("format") != POLICY_FORMAT:
-        from drs_torchrl.rundir import maze_run_message
+        from drs_torchrl.runtime.rundir import maze_run_message
 
         if maze := maze_run_message(file.parent):  # the maze's DQN agent: its own format and app
             raise PolicyCheckpointError(f"{file} is the policy of a drs-maze run: {maze}")

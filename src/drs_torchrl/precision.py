@@ -18,7 +18,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from drs_torchrl.errors import UserError
+from drs_torchrl.runtime.errors import UserError
 
 PRECISIONS = ("auto", "fp32", "bf16", "fp16")
 _DTYPES = {"bf16": torch.bfloat16, "fp16": torch.float16}

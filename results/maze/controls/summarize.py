@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from drs_torchrl.apps.maze_analysis import always_up_rate
+from drs_torchrl.tools.maze_analysis import always_up_rate
 
 root = Path(sys.argv[1] if len(sys.argv) > 1 else "runs/maze/controls")
 print(

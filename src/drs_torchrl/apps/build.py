@@ -24,7 +24,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm.auto import tqdm
 
 from drs_torchrl.config_dir import conf_dir
-from drs_torchrl.checkpoint import (
+from drs_torchrl.runtime.checkpoint import (
     Checkpointer,
     TrainingStateError,
     atomic_write_text,
@@ -41,14 +41,14 @@ from drs_torchrl.data.demo_mix import (
 )
 from drs_torchrl.demos import check_demos, load_demos, restage_demos, variant_mismatches
 from drs_torchrl.envs.factory import make_family_env
-from drs_torchrl.errors import ConfigError
+from drs_torchrl.runtime.errors import ConfigError
 from drs_torchrl.loop import EpisodeWindow, Progress, Schedule, aggregate_episodes, episode_summary, run_algorithm1
 from drs_torchrl.models import POLICY_FORMAT, read_policy_checkpoint
 from drs_torchrl.precision import describe_precision, grad_scaler, resolve_precision
-from drs_torchrl.provenance import code_version
+from drs_torchrl.runtime.provenance import code_version
 from drs_torchrl.rewards import is_learned, reward_setup, take_frozen_settings
-from drs_torchrl.run_logger import RunLogger
-from drs_torchrl.signals import worker_env
+from drs_torchrl.runtime.run_logger import RunLogger
+from drs_torchrl.runtime.signals import worker_env
 from drs_torchrl.tasks import TASK_OBSERVATION_KEY, family_from_config
 from drs_torchrl.apps.factories import make_collector, make_envs, make_replay_buffer, make_reward_learner
 from drs_torchrl.apps.validation import collector_for_device, collects_in_background, validate_config
@@ -389,7 +389,7 @@ class Run:
         return paths
 
     def save_training_state(self) -> Path:
-        """Everything needed to continue the run (:class:`~drs_torchrl.checkpoint.Checkpointer`)."""
+        """Everything needed to continue the run (:class:`~drs_torchrl.runtime.checkpoint.Checkpointer`)."""
         return self.checkpointer.save_state(self._state_payload())
 
     def _save(self) -> dict[str, str]:

@@ -32,9 +32,9 @@ from drs_torchrl.apps.hydra_record import (  # noqa: F401 (registers the configs
     replaced,
 )
 from drs_torchrl.config_dir import conf_dir  # noqa: F401 (the CLI's config path; re-exported)
-from drs_torchrl.console import UserError, console_script, user_error_message
-from drs_torchrl.errors import ConfigError
-from drs_torchrl.rundir import (
+from drs_torchrl.runtime.console import UserError, console_script, user_error_message
+from drs_torchrl.runtime.errors import ConfigError
+from drs_torchrl.runtime.rundir import (
     OldRun,
     clear_for_new_run,
     DiskFullError,
@@ -128,7 +128,7 @@ def resume_config(run_dir: Path, phase: str, overrides: list[str], composed: Dic
 def _other_reward(was, now) -> bool:
     """A reward checkpoint path that names a different reward: the saved one still exists and its bytes differ (a
     file moved to another path, the old one gone, is taken as the same reward)."""
-    from drs_torchrl.apps.study import sha256_file
+    from drs_torchrl.tools.study import sha256_file
 
     if not was or not now:
         return bool(was) != bool(now)
@@ -179,7 +179,7 @@ def check_reused_reward_overrides(cfg: DictConfig, phase: str, overrides: list[s
 
 
 def _run(cfg: DictConfig, phase: str) -> None:
-    from drs_torchrl.console import library_messages_requested, quiet_libraries
+    from drs_torchrl.runtime.console import library_messages_requested, quiet_libraries
 
     if not library_messages_requested(cfg):
         quiet_libraries()

@@ -25,9 +25,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from drs_torchrl.checkpoint import atomic_write_text
-from drs_torchrl.console import UserError, at_least, console_script
-from drs_torchrl.rundir import check_writable, load_run_config, lock_run_dir, unlock_run_dir
+from drs_torchrl.runtime.checkpoint import atomic_write_text
+from drs_torchrl.runtime.console import UserError, at_least, console_script
+from drs_torchrl.runtime.rundir import check_writable, load_run_config, lock_run_dir, unlock_run_dir
 
 
 class EvalError(UserError, ValueError):
@@ -100,7 +100,7 @@ def evaluate_run(
     family = family_from_config(cfg.env)
     split = split or cfg.env.split
     family.split_variants(split)  # unknown names raise the KeyError listing the variants
-    from drs_torchrl.apps.study import RecordError, pinned_reward
+    from drs_torchrl.tools.study import RecordError, pinned_reward
 
     try:  # a committed record names the reward it reused in reward.json (drs-study --report), pinned by hash
         pinned = pinned_reward(run_dir)

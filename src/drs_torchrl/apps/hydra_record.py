@@ -18,7 +18,7 @@ from pathlib import Path
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import OmegaConf
 
-from drs_torchrl.rundir import OldRun, RunDirBusyError, lock_run_dir
+from drs_torchrl.runtime.rundir import OldRun, RunDirBusyError, lock_run_dir
 
 # files by which a directory is recognised as holding a run (Hydra's own .hydra/ is not one: it
 # writes that for the new run before the app starts)

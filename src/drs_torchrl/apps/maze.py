@@ -39,7 +39,7 @@ recomputed from the current discriminator), a ``QValueActor`` with an ``EGreedyM
 and a ``SoftUpdate``/``HardUpdate`` target network. DrS itself is the same reward-learning core as the
 SAC families' (:class:`~drs_torchrl.learners.DrSLearner`: stage buffers, ``DiscriminatorLoss``,
 demonstrations), and the run is logged through the same TorchRL loggers. The reward figure,
-diagnostics and report live in :mod:`drs_torchrl.apps.maze_analysis`.
+diagnostics and report live in :mod:`drs_torchrl.tools.maze_analysis`.
 """
 
 from __future__ import annotations
@@ -63,7 +63,7 @@ from torchrl.envs import TransformedEnv
 from torchrl.envs.transforms import MultiStepTransform, RewardScaling, Transform
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from drs_torchrl.provenance import code_version
+from drs_torchrl.runtime.provenance import code_version
 from drs_torchrl.envs.maze import ACTIONS, GATES, MOVES, OBS_DIMS, ThreeRoomMaze, convert_observation, observation
 from drs_torchrl.learners import (
     DemoDiscriminatorLearner,
@@ -71,7 +71,7 @@ from drs_torchrl.learners import (
     OfflineClassifierLearner,
     SuccessClassifierLearner,
 )
-from drs_torchrl.apps.maze_analysis import (  # noqa: F401 (re-exported: the maze's analysis and report)
+from drs_torchrl.tools.maze_analysis import (  # noqa: F401 (re-exported: the maze's analysis and report)
     MazeConfigError,
     all_state_actions,
     dense_reward_table,
@@ -92,11 +92,11 @@ from drs_torchrl.apps.hydra_record import (  # (registers the resolver)
 from drs_torchrl.apps.overrides import check_added_settings, check_constructor_arguments
 from drs_torchrl.apps.schema import MazeSchema, check
 from drs_torchrl.config_dir import conf_dir
-from drs_torchrl.console import console_script
-from drs_torchrl.run_logger import RunLogger
+from drs_torchrl.runtime.console import console_script
+from drs_torchrl.runtime.run_logger import RunLogger
 from drs_torchrl.loop import EpisodeWindow, Progress, Schedule, run_algorithm1
 from drs_torchrl.rewards import available_rewards, reused_method, reward_entry, static_checkpoint_error
-from drs_torchrl.rundir import OldRun, RunDirBusyError, clear_for_new_run, lock_run_dir, unlock_run_dir
+from drs_torchrl.runtime.rundir import OldRun, RunDirBusyError, clear_for_new_run, lock_run_dir, unlock_run_dir
 from drs_torchrl.transforms import ClassifierReward, DrSReward, SemiSparseReward, StageIndicator, load_reward
 
 REWARD_INPUTS = ("state_action", "next_state")  # R(s, a) as the appendix's tabular analysis, or R(s') as Sec. 4.3

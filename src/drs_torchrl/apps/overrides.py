@@ -17,7 +17,7 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from drs_torchrl.config_dir import conf_dir
-from drs_torchrl.errors import ConfigError
+from drs_torchrl.runtime.errors import ConfigError
 
 __all__ = ["FREE_FORM", "check_added_settings", "check_constructor_arguments"]
 

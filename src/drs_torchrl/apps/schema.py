@@ -22,7 +22,7 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
 from omegaconf.errors import ValidationError
 
-from drs_torchrl.errors import ConfigError
+from drs_torchrl.runtime.errors import ConfigError
 
 __all__ = ["setting", "check", "RunSchema", "MazeSchema"]
 

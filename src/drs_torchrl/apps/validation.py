@@ -12,7 +12,7 @@ from torchrl.collectors import MultiCollector
 from drs_torchrl.apps.overrides import check_constructor_arguments
 from drs_torchrl.apps.schema import RunSchema, check
 from drs_torchrl.data.demo_mix import requested_sac_share
-from drs_torchrl.errors import ConfigError
+from drs_torchrl.runtime.errors import ConfigError
 from drs_torchrl.transforms.reward import _ACTIVATIONS, FORMULAS
 
 __all__ = ["ConfigError", "validate_config", "collects_in_background", "collector_for_device"]

@@ -13,7 +13,7 @@ import torch
 from tensordict import TensorDict
 from torchrl.data import LazyTensorStorage, ReplayBuffer
 
-from drs_torchrl.errors import ConfigError
+from drs_torchrl.runtime.errors import ConfigError
 
 # demos.sac_share=auto (the default): this share of every SAC batch from the demonstrations where they carry
 # the agent's actions; the best of issue 12's phase-1 comparison on pick_cube (results/demos_compare/pick_cube/)

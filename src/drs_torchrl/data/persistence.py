@@ -17,9 +17,9 @@ import torch
 from tensordict import TensorDict
 from torchrl.data import ReplayBuffer
 
-from drs_torchrl.console import UserError
-from drs_torchrl.rundir import ensure_free, nbytes
-from drs_torchrl.safe_files import UnsafeFileError, torch_load
+from drs_torchrl.runtime.console import UserError
+from drs_torchrl.runtime.rundir import ensure_free, nbytes
+from drs_torchrl.runtime.safe_files import UnsafeFileError, torch_load
 
 
 class SnapshotError(UserError, ValueError):

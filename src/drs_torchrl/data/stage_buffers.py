@@ -27,7 +27,7 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.data import LazyMemmapStorage, LazyTensorStorage, ReplayBuffer
 from torchrl.data.replay_buffers import Sampler, Writer
-from drs_torchrl.safe_files import torch_load
+from drs_torchrl.runtime.safe_files import torch_load
 
 TRAJ_STAGE_KEY = "traj_stage"
 

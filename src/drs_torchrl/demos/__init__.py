@@ -12,7 +12,7 @@ than the RL agent. Three sources, one module each, all writing the format of :mo
 * :mod:`.maniskill_h5`: ManiSkill's own trajectory files (``X.h5`` + ``X.json``, e.g. its
   downloadable datasets), replayed in the family's env (``drs-demos --from-h5``).
 
-The command line is :mod:`drs_torchrl.apps.demos`.
+The command line is :mod:`drs_torchrl.tools.demos`.
 """
 
 from drs_torchrl.demos.maniskill_h5 import load_maniskill_h5

@@ -14,7 +14,7 @@ import time
 import torch
 from tensordict import TensorDict
 
-from drs_torchrl.console import library_prints
+from drs_torchrl.runtime.console import library_prints
 from drs_torchrl.demos.store import DemoError, cut_at_success, demo_meta
 from drs_torchrl.tasks import TaskFamily
 from drs_torchrl.transforms.stages import StageIndicator

@@ -14,7 +14,7 @@ import torch
 from tensordict import TensorDict
 
 from drs_torchrl.demos.store import cut_at_success, demo_meta
-from drs_torchrl.rundir import load_run_config
+from drs_torchrl.runtime.rundir import load_run_config
 from drs_torchrl.tasks import get_family, with_stages, with_task_observation
 from drs_torchrl.transforms.stages import StageIndicator
 

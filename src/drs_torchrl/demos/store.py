@@ -27,9 +27,9 @@ from pathlib import Path
 import torch
 from tensordict import TensorDict
 
-from drs_torchrl.console import UserError
+from drs_torchrl.runtime.console import UserError
 from drs_torchrl.data.persistence import load_memmap_checked
-from drs_torchrl.rundir import check_writable, ensure_free, fsync_tree, nbytes, space_errors
+from drs_torchrl.runtime.rundir import check_writable, ensure_free, fsync_tree, nbytes, space_errors
 from drs_torchrl.tasks import TaskFamily
 from drs_torchrl.transforms.stages import StageIndicator, monotone_indicators
 

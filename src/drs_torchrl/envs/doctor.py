@@ -11,8 +11,8 @@ from __future__ import annotations
 import functools
 import sys
 
-from drs_torchrl.errors import UserError
-from drs_torchrl.console import console_script
+from drs_torchrl.runtime.errors import UserError
+from drs_torchrl.runtime.console import console_script
 
 VULKAN_HELP = (
     "No usable Vulkan device: SAPIEN (ManiSkill3's simulator) needs one even for state "

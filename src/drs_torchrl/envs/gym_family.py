@@ -31,7 +31,7 @@ from torchrl.data import Categorical, Composite
 from torchrl.envs import EnvBase, GymWrapper, ParallelEnv, SerialEnv
 from torchrl.envs.gym_like import default_info_dict_reader
 
-from drs_torchrl.errors import UserError
+from drs_torchrl.runtime.errors import UserError
 from drs_torchrl.tasks import TaskFamily
 
 WRAPPER_KWARGS = ("joint_damping_scale", "success_return")

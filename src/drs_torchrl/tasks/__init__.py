@@ -17,7 +17,7 @@ import inspect
 from dataclasses import dataclass, field
 from typing import Any
 
-from drs_torchrl.errors import ConfigError, UserError
+from drs_torchrl.runtime.errors import ConfigError, UserError
 
 
 @dataclass(frozen=True)
@@ -143,7 +143,7 @@ class TaskFamily:
         return kwargs
 
     def check_overrides(self, overrides: dict, env_id: str | None = None) -> None:
-        """Raise :class:`~drs_torchrl.errors.ConfigError` naming each key of ``overrides`` (``env.variant_overrides``,
+        """Raise :class:`~drs_torchrl.runtime.errors.ConfigError` naming each key of ``overrides`` (``env.variant_overrides``,
         ``--override``) that is neither a variant parameter of the family nor a keyword argument of its env
         (``env_id``, default the family's), with the close match of a typo; an env whose arguments cannot be
         read (not installed, not registered, ``**kwargs``) is left to its constructor."""

@@ -27,9 +27,9 @@ from tensordict import TensorDictBase
 from torch import nn
 from torchrl.envs.transforms import Transform
 
-from drs_torchrl.errors import UserError
-from drs_torchrl.rundir import fsync_path
-from drs_torchrl.safe_files import UnsafeFileError, torch_load
+from drs_torchrl.runtime.errors import UserError
+from drs_torchrl.runtime.rundir import fsync_path
+from drs_torchrl.runtime.safe_files import UnsafeFileError, torch_load
 
 CHECKPOINT_FORMAT = "drs-torchrl/reward"
 CHECKPOINT_VERSION = 1

@@ -12,7 +12,7 @@ import torch
 from omegaconf import OmegaConf
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from drs_torchrl.console import quiet_libraries
+from drs_torchrl.runtime.console import quiet_libraries
 from drs_torchrl.envs.factory import make_family_env
 from drs_torchrl.models import load_policy
 from drs_torchrl.tasks import family_from_config

@@ -21,10 +21,10 @@ import torch
 from torchrl.data import ReplayBuffer
 
 from drs_torchrl.data.persistence import SnapshotError, buffer_bytes, dump_buffer, load_buffer
-from drs_torchrl.errors import UserError
-from drs_torchrl.safe_files import UnsafeFileError, torch_load
-from drs_torchrl.rundir import ensure_free, fsync_path, fsync_tree, nbytes, space_errors
-from drs_torchrl.signals import signals_deferred
+from drs_torchrl.runtime.errors import UserError
+from drs_torchrl.runtime.safe_files import UnsafeFileError, torch_load
+from drs_torchrl.runtime.rundir import ensure_free, fsync_path, fsync_tree, nbytes, space_errors
+from drs_torchrl.runtime.signals import signals_deferred
 
 STATE_FORMAT = "drs-torchrl/training-state"
 STATE_VERSION = 1
@@ -50,7 +50,7 @@ def find_training_state(run_dir: Path) -> Path:
 
 def atomic_torch_save(obj, path: Path) -> None:
     """``torch.save`` into a temporary file renamed over ``path``: ``path`` is the old file or the new one,
-    never a part (a full disk raises :class:`~drs_torchrl.rundir.DiskFullError` and leaves the old one)."""
+    never a part (a full disk raises :class:`~drs_torchrl.runtime.rundir.DiskFullError` and leaves the old one)."""
     _atomic_write(path, lambda f: torch.save(obj, f), "wb")
 
 

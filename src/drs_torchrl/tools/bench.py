@@ -7,7 +7,7 @@ Measures, on the same task and machine:
     buffers;
   * ``learn_<algo>``: phase 1 (SAC + discriminators, UTD of the config) after learning starts,
     env steps/s and gradient updates/s, for each algo config given;
-  * ``plain``: the same algorithm as a plain single-file PyTorch loop (``drs_torchrl.apps.plain_loop``)
+  * ``plain``: the same algorithm as a plain single-file PyTorch loop (``drs_torchrl.tools.plain_loop``)
     at each config's batch size, measured right before and right after that config's pipeline rows
     (this machine's speed drifts within a run), and the pipeline's speed ratio over their mean;
   * ``--precisions fp32 bf16``: each pipeline row in each learner precision (``algo.precision``);
@@ -33,7 +33,7 @@ from pathlib import Path
 
 import torch
 
-from drs_torchrl.console import at_least, console_script
+from drs_torchrl.runtime.console import at_least, console_script
 
 
 def bench_raw_sim(env_id: str, steps: int, env_kwargs: dict, control_mode: str) -> float:
@@ -73,7 +73,7 @@ def bench_collect(family, steps: int, collector: str = "inproc") -> float:
     from torchrl.collectors import AsyncCollector, Collector, MultiAsyncCollector
     from torchrl.data import LazyTensorStorage, ReplayBuffer
 
-    from drs_torchrl.console import in_quiet_worker
+    from drs_torchrl.runtime.console import in_quiet_worker
     from drs_torchrl.data import StageBuffers, TrajectoryAssembler
     from drs_torchrl.envs.factory import make_family_env
 
@@ -565,7 +565,7 @@ def main(argv: list[str] | None = None) -> int:
         help="also measure the training-state checkpoint of a run holding N transitions (e.g. 1000000)",
     )
     a = p.parse_args(argv)
-    from drs_torchrl.rundir import check_writable
+    from drs_torchrl.runtime.rundir import check_writable
     from drs_torchrl.tasks import get_family
 
     fam = get_family(a.family)  # both checked before the benchmark starts
@@ -599,7 +599,7 @@ def main(argv: list[str] | None = None) -> int:
         )
     res["learn"] = []
     res["plain"] = []
-    from drs_torchrl.apps.plain_loop import run_plain_drs
+    from drs_torchrl.tools.plain_loop import run_plain_drs
     from drs_torchrl.precision import native_bf16
 
     res["machine"]["native_bf16"] = native_bf16("cpu")

@@ -36,8 +36,8 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from drs_torchrl.apps.overrides import check_added_settings
-from drs_torchrl.console import UserError, console_script
-from drs_torchrl.rundir import LOCK_NAME, RunDirBusyError, lock_run_dir, unlock_run_dir
+from drs_torchrl.runtime.console import UserError, console_script
+from drs_torchrl.runtime.rundir import LOCK_NAME, RunDirBusyError, lock_run_dir, unlock_run_dir
 from drs_torchrl.config_dir import conf_dir as _conf_dir
 
 SUCCESS_BAR = 0.9  # "solved": greedy success at or above this

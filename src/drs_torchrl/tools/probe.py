@@ -30,7 +30,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from drs_torchrl.console import at_least, console_script
+from drs_torchrl.runtime.console import at_least, console_script
 import torch
 
 
@@ -53,7 +53,7 @@ def rollout(
 
     from drs_torchrl.envs.factory import make_family_env
     from drs_torchrl.models import load_policy
-    from drs_torchrl.rundir import load_run_config
+    from drs_torchrl.runtime.rundir import load_run_config
     from drs_torchrl.tasks import TASK_OBSERVATION_KEY, family_from_config, with_task_observation
 
     cfg = load_run_config(policy_dir, needs=("env",))
@@ -198,7 +198,7 @@ def main(argv=None) -> int:
         a.overrides = {k: yaml.safe_load(v) for k, v in (o.split("=", 1) for o in a.variant_override)}
     except ValueError:
         p.error(f"--variant-override takes KEY=VALUE, got {a.variant_override}")
-    from drs_torchrl.console import quiet_libraries
+    from drs_torchrl.runtime.console import quiet_libraries
     from drs_torchrl.transforms.reward import DrSReward, load_reward
 
     quiet_libraries()

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from drs_torchrl.console import at_least, console_script
-from drs_torchrl.rundir import maze_run_message, read_run_csv
+from drs_torchrl.runtime.console import at_least, console_script
+from drs_torchrl.runtime.rundir import maze_run_message, read_run_csv
 
 
 def load(run_dir: Path):
@@ -155,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--reward-episode draws one run's episode; give one run directory, not {len(a.runs)}")
     try:
         if a.reward_episode:
-            from drs_torchrl.console import quiet_libraries
+            from drs_torchrl.runtime.console import quiet_libraries
 
             quiet_libraries()
             out = plot_reward_episode(

@@ -43,7 +43,7 @@ child process, with the study file's ``cluster:`` section (``partition``, ``time
 ``mem_gb``, ``gpus``, ``max_jobs``, ``max_resubmits``, ``signal_delay_s``, ``setup``, ``slurm_additional``; the
 command line overrides them). The jobs outlive the call: each is recorded in ``<root>/logs/<run>.job.json``, a call
 started again follows the jobs still queued or running, and a run whose job ended before it finished is resubmitted
-with ``resume=`` (:mod:`drs_torchrl.apps.study_cluster`, ``docs/cluster.md``).
+with ``resume=`` (:mod:`drs_torchrl.tools.study_cluster`, ``docs/cluster.md``).
 
 ``--report OUT`` reads the run directories (finished, interrupted or still running; a run without one
 keeps the record OUT already holds) and writes
@@ -87,7 +87,7 @@ from pathlib import Path
 
 import yaml
 
-from drs_torchrl.apps.study_cluster import (
+from drs_torchrl.tools.study_cluster import (
     EXECUTORS,
     SubmititRuns,
     Submitted,
@@ -101,8 +101,8 @@ from drs_torchrl.apps.study_cluster import (
     read_jobs,
     write_jobs,
 )
-from drs_torchrl.console import at_least, console_script
-from drs_torchrl.errors import UserError
+from drs_torchrl.runtime.console import at_least, console_script
+from drs_torchrl.runtime.errors import UserError
 
 
 class StudyError(UserError, ValueError):
@@ -203,7 +203,7 @@ def _parse_cluster(path: Path, spec):
 
 
 def load_cluster(path: str | Path):
-    """The study file's ``cluster:`` section (:class:`~drs_torchrl.apps.study_cluster.Cluster`; defaults if absent)."""
+    """The study file's ``cluster:`` section (:class:`~drs_torchrl.tools.study_cluster.Cluster`; defaults if absent)."""
     return _parse_cluster(Path(path), (yaml.safe_load(Path(path).read_text()) or {}).get("cluster"))
 
 
@@ -301,7 +301,7 @@ def _live_job(root: Path, name: str) -> str | None:
 
 def _locked(run_dir: Path) -> bool:
     """Some process holds the run directory's lock (it writes the run)."""
-    from drs_torchrl.rundir import RunDirBusyError, lock_run_dir, unlock_run_dir
+    from drs_torchrl.runtime.rundir import RunDirBusyError, lock_run_dir, unlock_run_dir
 
     if not run_dir.is_dir():
         return False
@@ -363,7 +363,7 @@ def check_run(run: Run, root: Path, record: Path | None) -> str | None:
 
     from drs_torchrl.tasks import family_from_config
     from drs_torchrl.apps import cli as apps  # noqa: F401  (registers the resolvers the configs use)
-    from drs_torchrl.errors import ConfigError
+    from drs_torchrl.runtime.errors import ConfigError
     from drs_torchrl.apps.overrides import check_added_settings
     from drs_torchrl.rewards import is_learned, reward_setup
     from drs_torchrl.apps.validation import validate_config
@@ -678,7 +678,7 @@ def report(
 
     A run with no directory under ``root`` keeps the record ``out`` (or the study's ``record``) already
     holds, so a report from a fresh checkout neither loses nor misstates what earlier sessions ran."""
-    from drs_torchrl.apps.comparison import CompareError, compare
+    from drs_torchrl.tools.comparison import CompareError, compare
 
     out = Path(out)
     files = out / "run_files"

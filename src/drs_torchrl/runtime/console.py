@@ -38,7 +38,7 @@ import traceback
 import warnings
 
 
-from drs_torchrl.errors import UserError  # noqa: E402  (re-exported: the one base class of user errors)
+from drs_torchrl.runtime.errors import UserError  # noqa: E402  (re-exported: the one base class of user errors)
 
 
 def _library_user_errors() -> tuple[type, ...]:
@@ -114,7 +114,7 @@ def user_error_message(exc: BaseException) -> str | None:
     if isinstance(exc, OSError) and (exc.filename or exc.errno in (errno.ENOSPC, errno.EDQUOT)):
         msg = f"{exc.filename}: {exc.strerror or exc}" if exc.filename else str(exc.strerror or exc)
         if exc.errno in (errno.ENOSPC, errno.EDQUOT) and exc.filename:
-            from drs_torchrl.rundir import free_bytes
+            from drs_torchrl.runtime.rundir import free_bytes
 
             return f"{msg} ({free_bytes(exc.filename) / 2**20:.1f} MiB free there); free some space or write elsewhere"
         return f"{msg}; {_OS_HINTS[exc.errno]}" if exc.errno in _OS_HINTS else msg

@@ -21,7 +21,7 @@ from pathlib import Path
 import torch
 from torchrl.record.loggers import Logger, TensorboardLogger
 
-from drs_torchrl.errors import UserError
+from drs_torchrl.runtime.errors import UserError
 
 __all__ = ["WideCSVLogger", "ResumableTensorboardLogger", "RunLogger", "LoggerConfigError"]
 

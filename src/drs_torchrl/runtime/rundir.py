@@ -25,7 +25,7 @@ import os
 import shutil
 from pathlib import Path
 
-from drs_torchrl.console import UserError
+from drs_torchrl.runtime.console import UserError
 
 LOCK_NAME = ".drs-lock"
 _HELD: dict[Path, int] = {}  # run directory -> file descriptor of its lock, for the locks this process holds
@@ -245,7 +245,7 @@ def maze_run_message(run_dir: str | os.PathLike) -> str | None:
 
 def load_run_config(run_dir: str | os.PathLike, needs: tuple[str, ...] = ("phase", "env", "reward", "algo")):
     """``RUN_DIR/config.yaml`` as an OmegaConf config, or a :class:`RunFileError` saying what is wrong with it
-    (not YAML, or without the sections ``needs``), or an :class:`~drs_torchrl.safe_files.UnsafeFileError` when
+    (not YAML, or without the sections ``needs``), or an :class:`~drs_torchrl.runtime.safe_files.UnsafeFileError` when
     a ``_target_`` names code outside drs-torchrl, TorchRL, tensordict and torch."""
     import yaml
     from omegaconf import DictConfig, OmegaConf
@@ -269,7 +269,7 @@ def load_run_config(run_dir: str | os.PathLike, needs: tuple[str, ...] = ("phase
     missing = [k for k in needs if not isinstance(cfg, DictConfig) or k not in cfg]
     if missing:
         raise RunFileError(maze_run_message(run_dir) or f"{path} is damaged: it lacks {', '.join(missing)}; {fix}")
-    from drs_torchrl.safe_files import check_targets
+    from drs_torchrl.runtime.safe_files import check_targets
 
     check_targets(cfg, path)  # resuming or evaluating instantiates what it names
     return cfg

@@ -65,7 +65,7 @@ def worker_env(make_env):
     whole process group; the trainer decides how to stop)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if os.environ.get("DRS_QUIET_LIBRARIES") == "1":
-        from drs_torchrl.console import quiet_libraries
+        from drs_torchrl.runtime.console import quiet_libraries
 
         quiet_libraries()
     return make_env()

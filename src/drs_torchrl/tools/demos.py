@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from drs_torchrl.console import UserError, at_least, console_script
+from drs_torchrl.runtime.console import UserError, at_least, console_script
 from drs_torchrl.demos import (
     DemosOutTakenError,
     check_demos_out,

@@ -18,7 +18,7 @@ import numpy as np
 import torch
 from omegaconf import ListConfig, OmegaConf
 
-from drs_torchrl.errors import UserError
+from drs_torchrl.runtime.errors import UserError
 from drs_torchrl.envs.maze import (
     ACTIONS,
     GATES,

@@ -28,9 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
-from drs_torchrl.console import console_script
-from drs_torchrl.rundir import maze_run_message, read_run_csv
-from drs_torchrl.errors import UserError
+from drs_torchrl.runtime.console import console_script
+from drs_torchrl.runtime.rundir import maze_run_message, read_run_csv
+from drs_torchrl.runtime.errors import UserError
 
 DEFAULT_GROUP_BY = ("reward.name",)
 

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import torch
 
-from drs_torchrl.errors import UserError
+from drs_torchrl.runtime.errors import UserError
 
 #: what a run's config may instantiate (``_target_``) on resume and evaluation: the modules whose classes and
 #: functions the configs build (the project's library, TorchRL's losses, buffers, collectors, modules and transforms,
@@ -157,7 +157,7 @@ def convert_file(path: str | Path) -> Path | None:
         plain = _plain(obj)
     except UnsafeFileError as exc:
         raise UnsafeFileError(f"{path}: not converted: {exc}") from None
-    from drs_torchrl.checkpoint import atomic_torch_save
+    from drs_torchrl.runtime.checkpoint import atomic_torch_save
 
     kept = path.with_name(path.name + ".orig")
     shutil.copy2(path, kept)
@@ -173,7 +173,7 @@ def _files(target: Path) -> list[Path]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from drs_torchrl.console import console_script
+    from drs_torchrl.runtime.console import console_script
 
     @console_script(CONVERT)
     def run(argv):
