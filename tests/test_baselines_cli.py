@@ -295,7 +295,7 @@ def test_the_recipe_default_keeps_drs_demonstrations_in_the_sac_batch_only(tmp_p
     for extra, sac_only in (((), True), (("demos.sac_share=0",), False), (("reward=vice_raq",), False)):
         tr = Run(cfg(*extra), "learn", tmp_path / f"run{len(extra)}{extra[:1]}")
         try:
-            assert tr.cfg.demos.stage_buffers is (not sac_only), extra
+            assert tr.setting("demos.stage_buffers") is (not sac_only), extra
             if tr.cfg.reward.name == "drs":
                 assert (int(tr.learner.stage_buffers.stage_counts()[-1]) == 0) is sac_only, extra
         finally:
@@ -306,6 +306,7 @@ def test_sac_share_auto_shares_where_the_demonstrations_allow_and_says_why_not(t
     """demos.sac_share=auto (the default): AUTO_SAC_SHARE of each SAC batch where the demonstrations carry
     the agent's actions, 0 (with the reason on the console) where they do not; the choice is saved resolved."""
     from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
 
     from drs_torchrl.demos import load_demos, save_demos
     from drs_torchrl.apps.cli import conf_dir
@@ -320,7 +321,10 @@ def test_sac_share_auto_shares_where_the_demonstrations_allow_and_says_why_not(t
 
     tr = trainer("a", f"demos.path={demos}")
     try:
-        assert tr.updater.demo_batch == round(AUTO_SAC_SHARE * 32) and tr.cfg.demos.sac_share == AUTO_SAC_SHARE
+        assert tr.updater.demo_batch == round(AUTO_SAC_SHARE * 32) and tr.setting("demos.sac_share") == AUTO_SAC_SHARE
+        # recorded once, in config.yaml; the composed config is not written to
+        assert OmegaConf.load(tmp_path / "a" / "config.yaml").demos.sac_share == AUTO_SAC_SHARE
+        assert tr.cfg.demos.sac_share == "auto"
         assert "demos.sac_share=auto -> 0.25: a share of every SAC batch" in capsys.readouterr().out
     finally:
         tr.close()
@@ -334,7 +338,7 @@ def test_sac_share_auto_shares_where_the_demonstrations_allow_and_says_why_not(t
     ):  # another controller's actions; no demonstrations
         tr = trainer(name, *extra)
         try:
-            assert tr.updater.demo_replay is None and tr.updater.demo_batch == 0 and tr.cfg.demos.sac_share == 0.0
+            assert tr.updater.demo_replay is None and tr.updater.demo_batch == 0 and tr.setting("demos.sac_share") == 0
         finally:
             tr.close()
     out = capsys.readouterr().out

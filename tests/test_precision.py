@@ -149,5 +149,6 @@ def test_default_learner_is_bf16_exactly_where_native_with_the_critics_one_after
         assert tr.updater.loss.deactivate_vmap  # autocast reaches every critic; faster than vmap here in fp32 too
         saved = OmegaConf.load(tmp_path / "config.yaml")
         assert saved.algo.precision == tr.precision  # resolved: a resume elsewhere keeps the run's precision
+        assert cfg.algo.precision == "auto"  # recorded in config.yaml, not written into the composed config
     finally:
         tr.close()

@@ -104,7 +104,7 @@ def test_a_reused_drs_reward_is_used_as_it_was_learned(tmp_path):
     says otherwise is refused, and a config that differs without one is made to say what the run uses."""
     from drs_torchrl.apps.cli import check_reused_reward_overrides
     from drs_torchrl.runtime.errors import ConfigError
-    from drs_torchrl.rewards import take_frozen_settings
+    from drs_torchrl.rewards import reused_reward_settings
     from drs_torchrl.transforms import DrSReward
 
     path = tmp_path / "reward.pt"
@@ -122,8 +122,10 @@ def test_a_reused_drs_reward_is_used_as_it_was_learned(tmp_path):
         ):
             check_reused_reward_overrides(reuse(given), "reuse", [given])
     cfg = reuse()  # the defaults (rescaled, alpha 1/3, hidden [32]) were not asked for: the checkpoint's are taken
-    notes = take_frozen_settings(cfg.reward, DrSReward.from_checkpoint(path))
-    assert cfg.reward.formula == "paper" and cfg.reward.alpha == 0.25 and list(cfg.reward.hidden) == [8]
-    assert list(cfg.reward.in_keys) == ["observation"]
+    settings, notes = reused_reward_settings(cfg.reward, DrSReward.from_checkpoint(path))
+    assert settings["formula"] == "paper" and settings["alpha"] == 0.25 and list(settings["hidden"]) == [8]
+    assert (
+        list(settings["in_keys"]) == ["observation"] and cfg.reward.formula == "rescaled"
+    )  # the config is not written
     assert "reward.formula=rescaled is not used: the reused reward was learned with formula=paper" in notes
     assert not any("in_keys" in n for n in notes)  # null: the family's inputs, nothing was said otherwise

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from hydra.utils import instantiate
-from omegaconf import DictConfig, OmegaConf, open_dict
+from omegaconf import DictConfig, OmegaConf
 from torchrl.envs.transforms import Transform
 
 from drs_torchrl.config_dir import conf_dir
@@ -151,16 +151,16 @@ def differs(setting, value) -> bool:
     return setting != value
 
 
-def take_frozen_settings(cfg, frozen) -> list[str]:
-    """Write the settings a reused DrS reward was learned with into the ``reward`` config ``cfg`` (a reused reward is
-    used as it was learned); one note per setting the config gave otherwise."""
-    notes = []
-    for key, value in frozen_settings(frozen).items():
-        if differs(cfg.get(key), value):
-            notes.append(f"reward.{key}={cfg.get(key)} is not used: the reused reward was learned with {key}={value}")
-        with open_dict(cfg):
-            cfg[key] = value
-    return notes
+def reused_reward_settings(cfg, frozen) -> tuple[dict, list[str]]:
+    """The settings a reused DrS reward was learned with (a reused reward is used as it was learned; the run records
+    them in its ``config.yaml``), and one note per setting the ``reward`` config ``cfg`` gave otherwise."""
+    settings = frozen_settings(frozen)
+    notes = [
+        f"reward.{key}={cfg.get(key)} is not used: the reused reward was learned with {key}={value}"
+        for key, value in settings.items()
+        if differs(cfg.get(key), value)
+    ]
+    return settings, notes
 
 
 def gail_stages_reward(cfg, phase: str) -> RewardSetup:

@@ -23,7 +23,6 @@ from torchrl.collectors import AsyncCollector
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm.auto import tqdm
 
-from drs_torchrl.config_dir import conf_dir
 from drs_torchrl.runtime.checkpoint import (
     Checkpointer,
     TrainingStateError,
@@ -46,7 +45,7 @@ from drs_torchrl.loop import EpisodeWindow, Progress, Schedule, aggregate_episod
 from drs_torchrl.models import POLICY_FORMAT, read_policy_checkpoint
 from drs_torchrl.precision import describe_precision, grad_scaler, resolve_precision
 from drs_torchrl.runtime.provenance import code_version
-from drs_torchrl.rewards import is_learned, reward_setup, take_frozen_settings
+from drs_torchrl.rewards import is_learned, reused_reward_settings, reward_setup
 from drs_torchrl.runtime.run_logger import RunLogger
 from drs_torchrl.runtime.signals import worker_env
 from drs_torchrl.tasks import TASK_OBSERVATION_KEY, family_from_config
@@ -54,9 +53,6 @@ from drs_torchrl.apps.factories import make_collector, make_envs, make_replay_bu
 from drs_torchrl.apps.validation import collector_for_device, collects_in_background, validate_config
 from drs_torchrl.transforms.classifier_reward import ClassifierReward
 from drs_torchrl.updaters.base import backward_and_step
-
-# the SAC updater of runs whose saved config predates algo.updater (read from conf/algo/sac_cpu.yaml)
-_DEFAULT_ALGO = "sac_cpu"
 
 
 def seed_everything(seed: int) -> None:
@@ -71,20 +67,17 @@ def _resolve_device(name: str) -> torch.device:
     return torch.device(name)
 
 
-def _ensure_updater_config(cfg: DictConfig) -> None:
-    """A config saved before ``algo.updater`` existed (an older run being resumed) trains SAC, as it did."""
-    if cfg.algo.get("updater") is not None:
-        return
-    node = OmegaConf.load(Path(conf_dir()) / "algo" / f"{_DEFAULT_ALGO}.yaml").updater
-    with open_dict(cfg):
-        cfg.algo.updater = node
-
-
-def save_config(cfg: DictConfig, path: Path) -> None:
-    """The run's config, resolved, except ``algo.updater``: that node only wires the ``algo`` settings into the
-    updater's builder (``${algo.gamma}``, ...), so it is kept as links and a config edited later (or a resume that
-    changes a setting) builds the updater from the settings as they are, not from a stale copy."""
-    data = OmegaConf.to_container(cfg, resolve=True)
+def save_config(cfg: DictConfig, path: Path, resolved: dict[str, Any] | None = None) -> None:
+    """The run's config with the values it ``resolved`` (dotted keys: an ``auto`` setting's choice, a reused reward's
+    settings), so that a resume on another machine runs as this run did; interpolations resolved, except
+    ``algo.updater``: that node only wires the ``algo`` settings into the updater's builder (``${algo.gamma}``, ...),
+    so it is kept as links and a config edited later (or a resume that changes a setting) builds the updater from the
+    settings as they are, not from a stale copy."""
+    data = OmegaConf.create(OmegaConf.to_container(cfg, resolve=True))
+    with open_dict(data):
+        for key, value in (resolved or {}).items():
+            OmegaConf.update(data, key, value, merge=False, force_add=True)
+    data = OmegaConf.to_container(data)
     data["algo"]["updater"] = OmegaConf.to_container(cfg.algo.updater, resolve=False)
     OmegaConf.save(OmegaConf.create(data), path)
 
@@ -111,23 +104,27 @@ class Run:
         if cfg.get("torch_threads"):
             torch.set_num_threads(int(cfg.torch_threads))
         self.device = device = _resolve_device(str(cfg.device))
+        # what this run resolves (auto settings, a reused reward's settings), by dotted key: computed once here and
+        # recorded once, in config.yaml, so that a resume on another machine runs as this run did; the composed
+        # config itself is not written to (self.setting reads the two together)
+        self.resolved: dict[str, Any] = {}
         # algo.precision: autocast of the learner's forward passes, fp32 master weights (drs_torchrl.precision)
         self.precision = resolve_precision(str(cfg.algo.get("precision") or "fp32"), device)
-        if cfg.algo.get("precision") == "auto":  # saved resolved: a resume on another machine keeps this run's numerics
-            cfg.algo.precision = self.precision
+        if cfg.algo.get("precision") == "auto":
+            self.resolved["algo.precision"] = self.precision
         scaler = grad_scaler(self.precision, device)
         note = collector_for_device(cfg, device)
         self.notes = [note] if note else []  # printed when the run starts
-        _ensure_updater_config(cfg)
 
         # the reward slot: static rewards and frozen learned ones are env transforms; phase 1 builds a learner
         self.reward = reward = reward_setup(cfg.reward, phase)
-        self.notes += take_frozen_settings(cfg.reward, reward.frozen)  # config.yaml says what the run used
-        reads = list(cfg.reward.get("in_keys") or getattr(reward.frozen, "reward_in_keys", None) or ())
+        frozen, notes = reused_reward_settings(cfg.reward, reward.frozen)  # a reused reward is used as it was learned
+        self.notes += notes
+        self.resolved.update({f"reward.{k}": v for k, v in frozen.items()})
+        reads = list(self.setting("reward.in_keys") or getattr(reward.frozen, "reward_in_keys", None) or ())
         if TASK_OBSERVATION_KEY in reads and not cfg.env.get("task_observation"):
-            with open_dict(cfg):  # the reward reads the task state: the env writes it (saved in config.yaml)
-                cfg.env.task_observation = True
-        self.family = family = family_from_config(cfg.env)
+            self.resolved["env.task_observation"] = True  # the reward reads the task state: the env writes it
+        self.family = family = family_from_config(cfg.env, task_observation=self.setting("env.task_observation"))
         self.env, self.eval_env, self._env_kwargs = make_envs(cfg, family, reward, device)
 
         self.num_demos, demos, self.learner = 0, None, None
@@ -196,7 +193,13 @@ class Run:
             wandb_mode=cfg.logger.get("wandb_mode", "offline"),
         )
         # written last: a run that fails to start (or to resume) leaves the directory as it was
-        save_config(cfg, self.run_dir / "config.yaml")
+        save_config(cfg, self.run_dir / "config.yaml", self.resolved)
+
+    def setting(self, key: str, default: Any = None) -> Any:
+        """A setting as this run uses it: what the run resolved (:attr:`resolved`), else the composed config's."""
+        if key in self.resolved:
+            return self.resolved[key]
+        return OmegaConf.select(self.cfg, key, default=default)
 
     @property
     def frames(self) -> int:
@@ -281,8 +284,7 @@ class Run:
                 else "the demonstrations go into the top stage buffer (the paper's Algorithm 1, line 3)"
             )
         )
-        with open_dict(cfg):
-            cfg.demos.stage_buffers = not sac_only
+        self.resolved["demos.stage_buffers"] = not sac_only
         return not sac_only
 
     def _demo_mix(self, cfg, demos):
@@ -293,7 +295,7 @@ class Run:
         if asked == 0:
             return self._check_demos_used(cfg, demos, 0)
         if asked is None and not demos:  # auto, and no demonstrations (or no reward learned here): nothing to share
-            cfg.demos.sac_share = 0.0
+            self.resolved["demos.sac_share"] = 0.0
             return None, 0
         root_keys = list(cfg.algo.policy_in_keys)
         problems = share_problems(
@@ -315,7 +317,7 @@ class Run:
                     "(beyond the paper: demos.sac_share=0 is its phase 1; results/demos_compare/pick_cube/)"
                 )
             )
-            cfg.demos.sac_share = share  # saved resolved: a resume keeps this run's choice
+            self.resolved["demos.sac_share"] = share  # recorded: a resume keeps this run's choice
             if share == 0:
                 return self._check_demos_used(cfg, demos, 0)
         elif problems:
@@ -326,10 +328,10 @@ class Run:
         return buffer, max(1, round(share * int(cfg.algo.batch_size)))
 
     def _check_demos_used(self, cfg, demos, demo_batch):
-        if demos and (cfg.get("demos") or {}).get("stage_buffers", True) is False:
+        if demos and self.setting("demos.stage_buffers", True) is False:
             raise ConfigError(
                 f"demos.stage_buffers=false keeps the demonstrations out of the stage buffers, and demos.sac_share "
-                f"is {cfg.demos.sac_share}: they would not be used at all; set demos.sac_share=0.25 "
+                f"is {self.setting('demos.sac_share')}: they would not be used at all; set demos.sac_share=0.25 "
                 "(demonstrations with the agent's actions: drs-demos' default) or demos.stage_buffers=true"
             )
         return None, demo_batch

@@ -20,7 +20,7 @@ from pathlib import Path
 import hydra
 import yaml
 from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 
 from drs_torchrl.apps.hydra_record import (  # noqa: F401 (registers the configs' resolvers)
     EMPTY_RUN_DIR,
@@ -122,6 +122,9 @@ def resume_config(run_dir: Path, phase: str, overrides: list[str], composed: Dic
             )
         OmegaConf.update(saved, key, parsed, merge=True)
     saved.resume = str(run_dir)
+    if saved.algo.get("updater") is None:  # saved before algo.updater existed: it trained SAC, and goes on with SAC
+        with open_dict(saved):
+            saved.algo.updater = OmegaConf.load(Path(conf_dir()) / "algo" / "sac_cpu.yaml").updater
     return saved
 
 

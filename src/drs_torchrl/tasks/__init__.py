@@ -282,14 +282,15 @@ def _names(value, key: str) -> tuple[str, ...]:
     return tuple(str(v) for v in value)
 
 
-def family_from_config(env_cfg) -> TaskFamily:
+def family_from_config(env_cfg, task_observation: bool | None = None) -> TaskFamily:
     """The task family of an ``env`` config: a registered one (``env=pick_cube``), or one the config
     defines itself (``env=custom env.family=NAME env.env_id=... env.stage_keys=[...]``), which is
-    registered under its name so that checkpoints and reuse find it."""
+    registered under its name so that checkpoints and reuse find it. ``task_observation``: not None, instead of
+    ``env.task_observation`` (a run whose reward reads the task state turns it on)."""
+    if task_observation is None:
+        task_observation = env_cfg.get("task_observation")
     if env_cfg.get("env_id") is None:
-        return with_task_observation(
-            with_stages(get_family(env_cfg.family), env_cfg.get("stages")), env_cfg.get("task_observation")
-        )
+        return with_task_observation(with_stages(get_family(env_cfg.family), env_cfg.get("stages")), task_observation)
     name = str(env_cfg.family)
     if name in _FAMILIES and not _FAMILIES[name].extra.get("from_config"):
         raise ValueError(
@@ -328,9 +329,7 @@ def family_from_config(env_cfg) -> TaskFamily:
         raise ValueError(
             f"env=custom: {exc} (set env.stage_keys, env.variants, env.train_variants, env.test_variants)"
         ) from None
-    return with_task_observation(
-        with_stages(register_family(family), env_cfg.get("stages")), env_cfg.get("task_observation")
-    )
+    return with_task_observation(with_stages(register_family(family), env_cfg.get("stages")), task_observation)
 
 
 def with_stages(family: TaskFamily, stages) -> TaskFamily:
