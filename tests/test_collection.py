@@ -79,13 +79,34 @@ def test_a_gpu_learner_gets_the_in_process_collector_and_the_cpu_keeps_the_backg
     Found on the H200 device check (results/gpu/): `drs-reuse device=cuda` refused to start."""
     from drs_torchrl.apps.validation import collector_for_device
 
-    cpu_cfg = config(f"algo.collector._target_={target}", "+algo.collector.num_workers=2")
-    assert collector_for_device(cpu_cfg, torch.device("cpu")) is None
-    assert cpu_cfg.algo.collector._target_ == target and cpu_cfg.algo.collector.num_workers == 2
+    cfg = config(f"algo.collector._target_={target}", "+algo.collector.num_workers=2")
+    node, note = collector_for_device(cfg.algo.collector, torch.device("cpu"))
+    assert note is None and node._target_ == target and node.num_workers == 2
 
-    gpu_cfg = config(f"algo.collector._target_={target}", "+algo.collector.num_workers=2")
-    note = collector_for_device(gpu_cfg, torch.device("cuda"))  # a device object only: no GPU needed
+    node, note = collector_for_device(cfg.algo.collector, torch.device("cuda"))  # a device object only: no GPU needed
     assert note is not None and target in note and "in-process" in note
-    assert gpu_cfg.algo.collector._target_ == "torchrl.collectors.Collector"
-    assert "num_workers" not in gpu_cfg.algo.collector
-    assert collector_for_device(gpu_cfg, torch.device("cuda")) is None  # already in-process: nothing to change
+    assert node._target_ == "torchrl.collectors.Collector" and "num_workers" not in node
+    assert cfg.algo.collector._target_ == target and cfg.algo.collector.num_workers == 2  # the config is not changed
+    assert collector_for_device(node, torch.device("cuda")) == (node, None)  # already in-process: nothing to change
+
+
+def test_config_yaml_records_what_the_run_resolved_and_the_composed_config_stays_as_composed(tmp_path):
+    """save_config: the values a run resolves (a collector for the device, auto settings, a reused reward's) replace
+    the composed ones in config.yaml, whole nodes included; algo.updater stays linked to the algo settings."""
+    from omegaconf import OmegaConf
+
+    from drs_torchrl.apps.build import save_config
+
+    cfg = config("algo.collector._target_=torchrl.collectors.MultiAsyncCollector", "+algo.collector.num_workers=2")
+    resolved = {
+        "algo.collector": {"_target_": "torchrl.collectors.Collector", "_partial_": True, "frames_per_batch": 64},
+        "algo.precision": "bf16",
+        "demos.sac_share": 0.25,
+        "env.task_observation": True,
+    }
+    save_config(cfg, tmp_path / "config.yaml", resolved)
+    saved = OmegaConf.load(tmp_path / "config.yaml")
+    assert OmegaConf.to_container(saved.algo.collector) == resolved["algo.collector"]  # replaced, not merged
+    assert saved.algo.precision == "bf16" and saved.demos.sac_share == 0.25 and saved.env.task_observation is True
+    assert OmegaConf.to_container(saved.algo.updater)["gamma"] == "${algo.gamma}"  # a link, as before
+    assert cfg.algo.collector.num_workers == 2 and cfg.algo.precision == "auto"

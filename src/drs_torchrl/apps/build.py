@@ -113,8 +113,10 @@ class Run:
         if cfg.algo.get("precision") == "auto":
             self.resolved["algo.precision"] = self.precision
         scaler = grad_scaler(self.precision, device)
-        note = collector_for_device(cfg, device)
+        self.collector_cfg, note = collector_for_device(cfg.algo.collector, device)
         self.notes = [note] if note else []  # printed when the run starts
+        if note:
+            self.resolved["algo.collector"] = OmegaConf.to_container(self.collector_cfg)
 
         # the reward slot: static rewards and frozen learned ones are env transforms; phase 1 builds a learner
         self.reward = reward = reward_setup(cfg.reward, phase)
@@ -461,7 +463,7 @@ class Run:
     @property
     def collects_in_background(self) -> bool:
         """True when the configured collector steps the env in its own process (``collects_in_background``)."""
-        return collects_in_background(self.cfg)
+        return collects_in_background(self.collector_cfg)
 
     def _collector_env(self):
         """The env for the collector: the run's own env for an in-process collector, else a picklable
@@ -483,15 +485,23 @@ class Run:
             )
             return functools.partial(worker_env, make)
 
-        if issubclass(get_class(self.cfg.algo.collector._target_), AsyncCollector):
+        if issubclass(get_class(self.collector_cfg._target_), AsyncCollector):
             return factory(0)
         # MultiAsyncCollector / MultiSyncCollector: one differently seeded env per worker process
-        return [factory(w) for w in range(int(self.cfg.algo.collector.get("num_workers") or 1))]
+        return [factory(w) for w in range(int(self.collector_cfg.get("num_workers") or 1))]
 
     def make_collector(self, frames: int):
         """The configured TorchRL collector for the next ``frames`` env steps, acting with the updater's policy
         (random actions until ``algo.learning_starts``)."""
-        return make_collector(self.cfg, self._collector_env(), self.updater.policy, frames, self.frames, self.device)
+        return make_collector(
+            self.collector_cfg,
+            self._collector_env(),
+            self.updater.policy,
+            frames,
+            learning_starts=int(self.cfg.algo.learning_starts),
+            frames_done=self.frames,
+            device=self.device,
+        )
 
     def run(self) -> dict[str, Any]:
         """Algorithm 1 from where the run stands to ``total_frames`` env steps; writes and returns the summary."""

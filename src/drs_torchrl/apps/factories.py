@@ -105,13 +105,15 @@ def make_reward_learner(
     )
 
 
-def make_collector(cfg: DictConfig, env, policy, frames: int, frames_done: int, device: torch.device):
-    """``algo.collector`` for the next ``frames`` env steps (``env`` may be a worker-process
-    constructor), with random actions until ``algo.learning_starts`` env steps in all."""
-    return instantiate(cfg.algo.collector)(
+def make_collector(
+    collector: DictConfig, env, policy, frames: int, *, learning_starts: int, frames_done: int, device: torch.device
+):
+    """The ``algo.collector`` node's TorchRL collector for the next ``frames`` env steps (``env`` may be a
+    worker-process constructor), with random actions until ``learning_starts`` env steps in all."""
+    return instantiate(collector)(
         env,
         policy,
         total_frames=frames,
-        init_random_frames=max(0, int(cfg.algo.learning_starts) - frames_done),
+        init_random_frames=max(0, int(learning_starts) - frames_done),
         device=device,
     )

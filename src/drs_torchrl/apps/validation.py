@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import torch
 from hydra.utils import get_class
-from omegaconf import DictConfig, open_dict
+from omegaconf import DictConfig, OmegaConf
 from torchrl.collectors import MultiCollector
 
 from drs_torchrl.apps.overrides import check_constructor_arguments
@@ -18,25 +18,24 @@ from drs_torchrl.transforms.reward import _ACTIVATIONS, FORMULAS
 __all__ = ["ConfigError", "validate_config", "collects_in_background", "collector_for_device"]
 
 
-def collects_in_background(cfg: DictConfig) -> bool:
-    """True when ``algo.collector`` steps the env in its own process (TorchRL's ``AsyncCollector``/
+def collects_in_background(collector: DictConfig) -> bool:
+    """True when the ``algo.collector`` node steps the env in its own process (TorchRL's ``AsyncCollector``/
     ``MultiAsyncCollector``/``MultiSyncCollector``), overlapping simulation with the updates of this process."""
-    return issubclass(get_class(cfg.algo.collector._target_), MultiCollector)
+    return issubclass(get_class(collector._target_), MultiCollector)
 
 
-def collector_for_device(cfg: DictConfig, device: torch.device) -> str | None:
-    """On a GPU, replace a background collector (``AsyncCollector``/``Multi*``: the CPU-machine speed choice of
-    ``algo=sac_cpu``, whose worker cannot feed a CUDA learner) by the in-process ``Collector``; returns the
-    console note, or None when nothing changed. Edits ``cfg`` (saved in config.yaml: a resume keeps it)."""
-    target = cfg.algo.collector._target_
-    if torch.device(device).type == "cpu" or not collects_in_background(cfg):
-        return None
-    with open_dict(cfg):
-        cfg.algo.collector._target_ = "torchrl.collectors.Collector"
-        cfg.algo.collector.pop("num_workers", None)
-    return (
+def collector_for_device(collector: DictConfig, device: torch.device) -> tuple[DictConfig, str | None]:
+    """The ``algo.collector`` node to use on ``device`` and the console note: on a GPU, the in-process ``Collector``
+    replaces a background one (``AsyncCollector``/``Multi*``: the CPU-machine speed choice of ``algo=sac_cpu``, whose
+    worker cannot feed a CUDA learner); otherwise the node as it is and None. ``collector`` itself is not changed."""
+    if torch.device(device).type == "cpu" or not collects_in_background(collector):
+        return collector, None
+    chosen = OmegaConf.create(OmegaConf.to_container(collector))
+    chosen._target_ = "torchrl.collectors.Collector"
+    chosen.pop("num_workers", None)
+    return chosen, (
         f"device={torch.device(device).type}: the in-process torchrl.collectors.Collector replaces "
-        f"algo.collector={target} (a background worker cannot feed a GPU learner)"
+        f"algo.collector={collector._target_} (a background worker cannot feed a GPU learner)"
     )
 
 
