@@ -51,6 +51,7 @@ def main() -> int:
     ap.add_argument("--n", type=int, default=40)
     ap.add_argument("--note", default="", help="what else ran on the machine")
     ap.add_argument("--mode", default=None, help="torch.compile mode (e.g. max-autotune-no-cudagraphs)")
+    ap.add_argument("--backend", default="inductor", help="torch.compile backend (aot_eager: traced, eager kernels)")
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "bench" / "overhead_probe")
     a = ap.parse_args()
     torch.set_num_threads(a.threads)
@@ -61,12 +62,24 @@ def main() -> int:
     # the pipeline's update (critics one after the other, as conf/algo/sac_cpu.yaml), 256 and 8 wide
     wide, narrow = build(True, False, 256), build(True, False, 8)
     batches = [wide.sample() for _ in range(8)]
-    upd = blocks({"256 wide": whole_update(wide), "8 wide": whole_update(narrow)}, batches, a.reps, a.n)
+    # and the same 256-wide update with its loss compiled (critics vmapped: one graph), the decision's comparison
+    vmapped = build(True, True, 256)
+    vmapped.loss = torch.compile(vmapped.loss, mode=a.mode, backend=a.backend)
+    upd = blocks(
+        {
+            "256 wide": whole_update(wide),
+            "8 wide": whole_update(narrow),
+            "256 wide, loss compiled": whole_update(vmapped),
+        },
+        batches,
+        a.reps,
+        a.n,
+    )
     # the loss's forward, eager and compiled (vmapped critics: one graph, no recompilation)
     fwd = {}
     for h in (256, 8):
         u = build(True, True, h)
-        compiled = torch.compile(u.loss, mode=a.mode)
+        compiled = torch.compile(u.loss, mode=a.mode, backend=a.backend)
         t = time.perf_counter()
         with torch.no_grad():
             compiled(batches[0])
@@ -94,6 +107,7 @@ def main() -> int:
         "threads": a.threads,
         "note": a.note,
         "compile_mode": a.mode,
+        "compile_backend": a.backend,
         "update_ms": {k: [round(x, 2) for x in v] for k, v in upd.items()},
         "overhead_share": round(best["8 wide"] / best["256 wide"], 3),
         "loss_forward_ms": fwd,
@@ -103,16 +117,14 @@ def main() -> int:
     md = [
         f"# The SAC update's size-independent overhead, and what torch.compile removes (`{res['command']}`)",
         "",
-        f"{cpu}, torch {res['torch']}, {a.threads} thread(s), compile mode {a.mode or 'default'}. {a.note}",
+        f"{cpu}, torch {res['torch']}, {a.threads} thread(s), compile backend {a.backend}, mode {a.mode or 'default'}. {a.note}",
         "",
         "| measurement | ms per call, each block (min) |",
         "|---|---|",
     ]
     for k, v in upd.items():
-        md.append(
-            f"| whole update, hidden {k} (eager; critics one after the other) | "
-            f"{', '.join(f'{x:.1f}' for x in v)} ({min(v):.1f}) |"
-        )
+        how = "critics vmapped, the loss compiled" if "compiled" in k else "eager; critics one after the other"
+        md.append(f"| whole update, hidden {k} ({how}) | {', '.join(f'{x:.1f}' for x in v)} ({min(v):.1f}) |")
     for h, r in fwd.items():
         for k in ("eager", "compiled", "eager, with backward", "compiled, with backward"):
             md.append(
