@@ -255,6 +255,27 @@ def test_slurm_where_there_is_none_is_refused_in_one_line_and_cancel_says_when_n
     assert f"drs-study: no job of {f} is queued or running" in capsys.readouterr().out
 
 
+def test_a_job_slurm_does_not_take_is_refused_in_one_line_and_nothing_is_recorded(tmp_path, monkeypatch, capsys):
+    """sbatch failing (here: slurmctld down) had ended drs-study as an "internal error, a bug rather than your
+    input" with submitit's traceback; it is a one-line refusal naming sbatch's reason and what to check."""
+    fake = _fake_slurm(tmp_path / "bin", "exit 0")
+    (fake / "sbatch").write_text(
+        "#!/bin/sh\necho 'sbatch: error: Batch job submission failed: Unable to contact slurm controller "
+        "(connect failure)' >&2\nexit 1\n"
+    )
+    monkeypatch.setenv("PATH", f"{fake}:{os.environ['PATH']}")
+    root = tmp_path / "runs"
+    f = write(tmp_path, {"root": str(root), "runs": [{"name": "a", "args": ["total_frames=1000"]}]})
+    with pytest.raises(SystemExit) as exit_:
+        main([str(f), "--executor", "slurm"])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err  # (sbatch's own line may come first: it writes to the terminal too)
+    ours = err.splitlines()[-1]
+    assert ours.startswith("drs-study: error: slurm did not take run a's job (sbatch: error: Batch job submission")
+    assert "Unable to contact slurm controller" in ours and "sinfo" in ours and "Traceback" not in err
+    assert sc.read_jobs(root, "a") is None  # no job recorded for the run: the next call submits it
+
+
 def test_a_restarted_driver_follows_a_live_job_and_never_submits_a_second_one(tmp_path, monkeypatch, capsys):
     """The job file names a job Slurm still runs: --status shows it, another call follows it (no sbatch), a second
     driver on the same root is refused, and --cancel cancels it."""

@@ -29,6 +29,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from drs_torchrl.runtime.errors import UserError
+
 EXECUTORS = ("local", "submitit-local", "slurm")
 _SUBMITIT_CLUSTER = {"submitit-local": "local", "slurm": "slurm"}
 
@@ -51,6 +53,10 @@ ENDED = {
 def ended(state: str) -> bool:
     """Whether a job in ``state`` (:func:`job_state`) has ended; ``CANCELLED by 0`` is ``CANCELLED``."""
     return state.split()[0] in ENDED if state else False
+
+
+class SubmitError(UserError, RuntimeError):
+    """A job the cluster did not take (sbatch refused it): an environment or settings problem, not a bug."""
 
 
 # --- the study file's cluster: section ------------------------------------------------------------------------------
@@ -397,7 +403,15 @@ class SubmititRuns:
 
         ex = submitit.AutoExecutor(folder=self.folder(name), cluster=_SUBMITIT_CLUSTER[self.executor])
         ex.update_parameters(name=f"drs-{name}", **self.cluster.executor_parameters(self.executor))
-        job = ex.submit(RunCommand(list(cmd), str(log), os.getcwd(), dict(env)))
+        try:
+            job = ex.submit(RunCommand(list(cmd), str(log), os.getcwd(), dict(env)))
+        except submitit.core.utils.FailedJobError as exc:  # sbatch said no: Slurm down, a bad partition, ...
+            said = next((ln.strip() for ln in str(exc).splitlines() if ln.strip()), "no message")
+            raise SubmitError(
+                f"{self.executor} did not take run {name}'s job ({said}); check that Slurm answers (sinfo) and the "
+                "study's cluster settings (partition, time, memory), then start drs-study again: finished runs are "
+                "skipped, nothing was submitted for this one"
+            ) from None
         rec = read_jobs(self.root, name) or {"executor": self.executor, "folder": str(self.folder(name)), "jobs": []}
         rec.update(executor=self.executor, folder=str(self.folder(name)), given_up=None)
         rec["jobs"].append(
