@@ -172,6 +172,17 @@ def test_resume_errors_are_clear(tmp_path):
     assert p.returncode == 2 and "not a drs-torchrl run directory" in p.stderr
 
 
+def test_a_config_saved_before_algo_updater_existed_resumes_with_sac(tmp_path):
+    from drs_torchrl.apps.cli import resume_config
+
+    OmegaConf.save(
+        OmegaConf.create({"phase": "learn", "algo": {"name": "sac_cpu", "gamma": 0.8}}), tmp_path / "config.yaml"
+    )
+    cfg = resume_config(tmp_path, "learn", [])
+    assert cfg.algo.updater._target_ == "drs_torchrl.updaters.sac.make_sac_updater"
+    assert OmegaConf.to_container(cfg.algo.updater)["gamma"] == "${algo.gamma}" and cfg.algo.updater.gamma == 0.8
+
+
 def test_resume_config_applies_value_overrides_and_new_variant_parameters(tmp_path):
     """``resume=RUN_DIR`` takes value overrides on the saved config; ``+`` may add a variant parameter
     (e.g. ``+env.variant_overrides.max_steps=150``), nothing else that the run's config lacks."""

@@ -122,7 +122,7 @@ def resume_config(run_dir: Path, phase: str, overrides: list[str], composed: Dic
             )
         OmegaConf.update(saved, key, parsed, merge=True)
     saved.resume = str(run_dir)
-    if saved.algo.get("updater") is None:  # saved before algo.updater existed: it trained SAC, and goes on with SAC
+    if "algo" in saved and saved.algo.get("updater") is None:  # saved before algo.updater existed: SAC, as it was
         with open_dict(saved):
             saved.algo.updater = OmegaConf.load(Path(conf_dir()) / "algo" / "sac_cpu.yaml").updater
     return saved
