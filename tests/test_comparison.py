@@ -192,3 +192,29 @@ def test_groups_beyond_ten_keep_distinct_styles():
     styles = [(s["color"], s["linestyle"]) for s in map(group_style, range(40))]
     assert len(set(styles)) == 40
     assert group_style(0) == {"color": "C0", "linestyle": "-"} and group_style(13)["linestyle"] == "--"
+
+
+def test_a_run_a_success_rule_ended_early_is_held_at_its_last_evaluation_and_sets_no_horizon(tmp_path):
+    """eval.stop_at_success ends a run once it succeeds: it must not cut every group's AUC to its few steps, and its
+    group's mean must not lose it at the steps it did not run."""
+    import json
+
+    a = make_run(tmp_path, "a", "drs", 0, [0.0, 0.9, 0.9], [0, 0, 0])  # stopped at 3k by the rule
+    (a / "summary.json").write_text(json.dumps({"frames": 3000, "stopped_at_eval_success": {"frames": 3000}}))
+    b = make_run(tmp_path, "b", "drs", 1, [0.0, 0.0, 0.0, 0.0, 0.2, 0.8], [0] * 6)
+    c = make_run(tmp_path, "c", "sparse", 0, [0.0, 0.1, 0.1, 0.1, 0.1, 0.1], [0] * 6)
+    from drs_torchrl.tools.comparison import group_runs, load_run, summary_rows
+
+    runs = [load_run(x) for x in (a, b, c)]
+    assert [r.stopped_at for r in runs] == [3000, None, None]
+    rows = {r["group"]: r for r in summary_rows(group_runs(runs))}
+    assert rows["drs"]["auc_horizon"] == 6000  # set by the runs that ran their budget, not a's 3k
+    auc_a = ((0.0 + 0.9) / 2 + 0.9 * 4) / 5  # 0.9 held from 3k to 6k
+    auc_b = (0.0 + 0.0 + 0.0 + 0.1 + 0.5) / 5
+    np.testing.assert_allclose(rows["drs"]["auc_mean"], np.mean([auc_a, auc_b]))
+    assert rows["drs"]["final"] == [0.9, 0.8] and rows["drs"]["last3_mean"] == pytest.approx((0.6 + 1 / 3) / 2)
+    # the group's mean passes 0.5 at 5k (0.9 held, 0.2), a step a did not run: without a's held value no step after
+    # 3k would count (not every run of the group has it)
+    assert rows["drs"]["first_step_0_5"] == 5000 and rows["drs"]["carried"] == [("a", 3000)]
+    md = compare([a, b, c], tmp_path / "out")["md"].read_text()
+    assert "Ended early by a success rule" in md and "`a` at 3k" in md

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +47,7 @@ class RunRecord:
     eval: "object"  # pandas DataFrame (eval.csv), or None when no evaluation ran yet
     train: "object"  # pandas DataFrame (train.csv)
     stages: tuple | None = None  # the run's stage indicators, success last (None when its config does not say)
+    stopped_at: int | None = None  # env steps at which a success rule ended it (eval.stop_at_success, stop_at_success)
 
 
 @dataclass
@@ -97,7 +98,20 @@ def load_run(run: Path, group_by: tuple[str, ...] = DEFAULT_GROUP_BY, label: str
         eval=ev,
         train=read_run_csv(run / "train.csv"),
         stages=_run_stages(cfg),
+        stopped_at=_stopped_at(run),
     )
+
+
+def _stopped_at(run: Path) -> int | None:
+    """The env steps at which a success rule ended the run (its ``summary.json``), or None."""
+    import json
+
+    try:
+        summary = json.loads((run / "summary.json").read_text())
+    except (OSError, ValueError):
+        return None
+    stop = summary.get("stopped_at_eval_success") or summary.get("stopped_at_success")
+    return int(stop.get("frames", summary.get("frames", 0))) if isinstance(stop, dict) else None
 
 
 def _run_stages(cfg: dict) -> tuple | None:
@@ -197,24 +211,55 @@ def first_step_over(
     return float(hit["step"].iloc[0]) if len(hit) else None
 
 
+def _carried(run: RunRecord, horizon: float, steps) -> object:
+    """The run's evaluations, and for a run a success rule ended early its last evaluation held at each of ``steps``
+    after it, up to ``horizon`` (it had reached the rule's success; the rest of its budget would only have confirmed
+    it)."""
+    import pandas as pd
+
+    if run.stopped_at is None or run.eval is None:
+        return run.eval
+    ev = run.eval.drop_duplicates("step", keep="last").sort_values("step")
+    last_step = float(ev["step"].iloc[-1])
+    later = sorted(
+        {float(x) for x in steps if last_step < float(x) <= horizon} | ({horizon} if horizon > last_step else set())
+    )
+    if not later:
+        return ev
+    held = pd.concat([ev.iloc[[-1]]] * len(later), ignore_index=True)
+    held["step"] = later
+    return pd.concat([ev, held], ignore_index=True)
+
+
 def summary_rows(groups: list[Group]) -> list[dict]:
     """Per group: final and last-3 evaluation success, the normalised AUC up to the shortest evaluated
     run of the whole comparison (so groups are compared over the same steps), and the first step at
     which the group's mean success passes 0.5. A run with a single evaluation has no curve to integrate
-    (AUC NaN) and does not set the horizon: e.g. ORIL's phase 1, whose reward is fixed before its first step."""
+    (AUC NaN) and does not set the horizon: e.g. ORIL's phase 1, whose reward is fixed before its first step.
+    Nor does a run that a success rule ended early (``eval.stop_at_success``, ``stop_at_success``): its last
+    evaluation is held to the horizon (:func:`_carried`), for its AUC and its group's first step past 0.5."""
     evaluated = [r for g in groups for r in g.runs if r.eval is not None]
     curves = [_eval_curve(r)[0] for r in evaluated]
-    horizon = min((x[-1] for x in curves if x.size >= 2), default=min((x[-1] for x in curves), default=float("nan")))
+    ran = [_eval_curve(r)[0] for r in evaluated if r.stopped_at is None]
+    horizon = min(
+        (x[-1] for x in (ran or curves) if x.size >= 2), default=min((x[-1] for x in curves), default=float("nan"))
+    )
+    if not ran and curves:  # every run was ended by a success rule: the longest of them
+        horizon = max(x[-1] for x in curves)
+    steps = {x for c in curves for x in c}
+    carried = {id(r): _carried(r, horizon, steps) for r in evaluated}
     rows = []
     for g in groups:
         finals, last3, aucs = [], [], []
         for r in g.runs:
             if r.eval is not None:
-                x, s = _eval_curve(r)
+                _, s = _eval_curve(r)  # the evaluations that ran
                 finals.append(float(s[-1]))
                 last3.append(float(np.mean(s[-3:])))
-                aucs.append(success_auc(x, s, horizon))
+                ev = carried[id(r)]
+                aucs.append(success_auc(ev["step"].to_numpy(float), ev["success_rate"].to_numpy(float), horizon))
         full = [r for r in g.runs if r.eval is not None]
+        held = [replace(r, eval=carried[id(r)]) for r in full]
         aucs = [a for a in aucs if a == a]
         rows.append(
             {
@@ -229,7 +274,8 @@ def summary_rows(groups: list[Group]) -> list[dict]:
                 "auc_horizon": float(horizon),
                 "auc_mean": float(np.mean(aucs)) if aucs else float("nan"),
                 "auc_std": float(np.std(aucs)) if aucs else float("nan"),
-                "first_step_0_5": first_step_over(full) if len(full) == len(g.runs) and full else None,
+                "first_step_0_5": first_step_over(held) if len(full) == len(g.runs) and full else None,
+                "carried": [(r.path.name, r.stopped_at) for r in full if r.stopped_at is not None],
             }
         )
     return rows
@@ -370,6 +416,13 @@ def compare(
         lines.append(
             f"| {row['group']} | {row['runs']} ({seeds}) | {row['steps']} | {finals} | {ms} | {l3} | {auc} | {first} |"
         )
+    held = [f"`{name}` at {_steps_label(at)}" for row in rows for name, at in row.get("carried", [])]
+    if held:
+        lines += [
+            "",
+            "Ended early by a success rule (`eval.stop_at_success` or `stop_at_success`), their last evaluation held to "
+            f"{h} for the AUC and the first step past 0.5: " + ", ".join(held) + ".",
+        ]
     if train_stages:  # when each stage is first reached in half the training episodes (issue 12's table)
         cols = [*train_stages, "success_rate"]
         lines += [
