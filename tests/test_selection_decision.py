@@ -160,3 +160,21 @@ def test_round_2_adopts_only_when_both_arms_hold(sel, tmp_path, pick_f, valve_f_
     r = sel.collect(folder, SPEEDS)
     rule = sel.round2_rule(r["table"], "sac_ln")
     assert rule["final"] and rule["adopt"] is adopt
+
+
+def test_step_0_speeds_are_the_mean_env_steps_per_s_past_6000_of_each_candidates_runs(sel, tmp_path):
+    dirs = []
+    for i, (algo, rates) in enumerate(
+        [(c, [900.0, 50.0, 60.0]) for c in sel.CANDIDATES] + [("crossq", [900.0, 10.0, 30.0])]
+    ):
+        d = tmp_path / f"r{i}"
+        d.mkdir()
+        (d / "config.yaml").write_text(f"algo:\n  name: {algo}\n  updater:\n    gamma: ${{algo.gamma}}\n")
+        rows = ["step,frames,env_steps_per_s"] + [f"{f},{f},{r}" for f, r in zip((5000, 7000, 8000), rates)]
+        (d / "train.csv").write_text("\n".join(rows) + "\n")  # the 5000 row (random actions) is left out
+        dirs.append(d)
+    v = sel.speeds(dirs)
+    assert v["sac_cpu"] == 55.0 and v["crossq"] == (55.0 + 20.0) / 2
+    assert v["_runs"]["crossq"] == [55.0, 20.0]
+    with pytest.raises(SystemExit, match="no timing run of"):
+        sel.speeds(dirs[:2])
