@@ -86,6 +86,7 @@ def test_a_gpu_learner_gets_the_in_process_collector_and_the_cpu_keeps_the_backg
     node, note = collector_for_device(cfg.algo.collector, torch.device("cuda"))  # a device object only: no GPU needed
     assert note is not None and target in note and "in-process" in note
     assert node._target_ == "torchrl.collectors.Collector" and "num_workers" not in node
+    assert node.frames_per_batch == cfg.algo.frames_per_batch  # resolved: the node stands alone (make_collector)
     assert cfg.algo.collector._target_ == target and cfg.algo.collector.num_workers == 2  # the config is not changed
     assert collector_for_device(node, torch.device("cuda")) == (node, None)  # already in-process: nothing to change
 

@@ -129,7 +129,7 @@ def run(
     checkpoint_interval=10**9,
     stop_at_success=None,
     stop_at_eval_success=None,
-    eval_streak=1,
+    stop_streak=1,
     eval_success=(0.5,),
     window=4,
     progress=None,
@@ -170,7 +170,7 @@ def run(
             checkpoint_interval=checkpoint_interval,
             stop_at_success=stop_at_success,
             stop_at_eval_success=stop_at_eval_success,
-            eval_streak=eval_streak,
+            stop_streak=stop_streak,
         ),
         progress=progress if progress is not None else Progress(),
         sync_policy=(lambda: calls.append(("sync_policy",))) if sync else None,
@@ -386,7 +386,7 @@ def test_eval_stop_at_success_ends_the_run_after_a_streak_of_evaluations_and_a_l
     batches = [batch(i) for i in range(8)]
     # evaluations at 64, 128, ...: 0.8, 0.6 (the streak resets), 0.9, 0.8 -> the second in a row at 256
     summary, calls, _, _ = run(
-        batches, eval_interval=BATCH, stop_at_eval_success=0.8, eval_streak=2, eval_success=(0.8, 0.6, 0.9, 0.8, 0.1)
+        batches, eval_interval=BATCH, stop_at_eval_success=0.8, stop_streak=2, eval_success=(0.8, 0.6, 0.9, 0.8, 0.1)
     )
     assert summary["stopped_at_eval_success"] == {"success_rate": 0.8, "threshold": 0.8, "streak": 2, "frames": 256}
     assert summary["frames"] == 256 and summary["interrupted"] is False
@@ -399,7 +399,7 @@ def test_eval_stop_at_success_ends_the_run_after_a_streak_of_evaluations_and_a_l
 def test_the_evaluation_streak_is_part_of_the_progress_a_resume_continues():
     progress = Progress(frames=0, eval_streak=1)  # the saved state's streak: one evaluation reached it already
     summary, _, _, _ = run(
-        [batch(i) for i in range(4)], eval_interval=BATCH, stop_at_eval_success=0.5, eval_streak=2,
+        [batch(i) for i in range(4)], eval_interval=BATCH, stop_at_eval_success=0.5, stop_streak=2,
         eval_success=(0.5,), progress=progress,
     )  # fmt: skip
     assert summary["stopped_at_eval_success"]["frames"] == BATCH and progress.eval_streak == 2

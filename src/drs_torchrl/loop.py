@@ -38,8 +38,8 @@ class Schedule:
     eval_interval: int = 20000
     checkpoint_interval: int = 20000
     stop_at_success: float | None = None  # end once the training success over a full episode window reaches it
-    stop_at_eval_success: float | None = None  # end once this many evaluations in a row (eval_streak) reach it
-    eval_streak: int = 1
+    stop_at_eval_success: float | None = None  # end once stop_streak evaluations in a row reach it
+    stop_streak: int = 1  # evaluations in a row that stop_at_eval_success needs
 
 
 @dataclass
@@ -324,24 +324,24 @@ def run_algorithm1(
 
 
 def _eval_reached(schedule: Schedule, ev: dict, progress: Progress, summary: dict, name: str) -> bool:
-    """``stop_at_eval_success``: ``eval_streak`` evaluations in a row reached it (a comparison's "env steps to
+    """``stop_at_eval_success``: ``stop_streak`` evaluations in a row reached it (a comparison's "env steps to
     success" is then known, and the rest of the budget would only confirm it); the run ends as finished."""
     target = schedule.stop_at_eval_success
     if target is None:
         return False
     reached = float(ev.get("success_rate", 0.0)) >= float(target)
     progress.eval_streak = progress.eval_streak + 1 if reached else 0
-    if progress.eval_streak < schedule.eval_streak:
+    if progress.eval_streak < schedule.stop_streak:
         return False
     summary["stopped_at_eval_success"] = {
         "success_rate": float(ev["success_rate"]),
         "threshold": float(target),
-        "streak": int(schedule.eval_streak),
+        "streak": int(schedule.stop_streak),
         "frames": int(progress.frames),
     }
     tqdm.write(
         f"{name}: evaluation success {float(ev['success_rate']):.2f} >= eval.stop_at_success={float(target):g} "
-        f"in {schedule.eval_streak} evaluation(s) in a row at {progress.frames} env steps: stopping"
+        f"in {schedule.stop_streak} evaluation(s) in a row at {progress.frames} env steps: stopping"
     )
     return True
 

@@ -544,7 +544,7 @@ class Run:
                         checkpoint_interval=int(cfg.checkpoint_interval),
                         stop_at_success=cfg.get("stop_at_success"),
                         stop_at_eval_success=cfg.eval.get("stop_at_success"),
-                        eval_streak=int(cfg.eval.get("stop_streak") or 1),
+                        stop_streak=int(cfg.eval.get("stop_streak") or 1),
                     ),
                     progress=self.progress,
                     sync_policy=self.collector.update_policy_weights_ if background else None,

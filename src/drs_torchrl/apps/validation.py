@@ -30,7 +30,7 @@ def collector_for_device(collector: DictConfig, device: torch.device) -> tuple[D
     worker cannot feed a CUDA learner); otherwise the node as it is and None. ``collector`` itself is not changed."""
     if torch.device(device).type == "cpu" or not collects_in_background(collector):
         return collector, None
-    chosen = OmegaConf.create(OmegaConf.to_container(collector))
+    chosen = OmegaConf.create(OmegaConf.to_container(collector, resolve=True))  # standalone: no ${algo...} links
     chosen._target_ = "torchrl.collectors.Collector"
     chosen.pop("num_workers", None)
     return chosen, (
