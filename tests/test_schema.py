@@ -56,7 +56,7 @@ def test_every_shipped_config_passes_its_schema(config, overrides):
         ("algo.buffer_size=16", "algo.buffer_size (16) is smaller than algo.batch_size (256)"),  # cross-field
         # a switch is true or false: bool("no") is True, so "no" would have turned it on
         ("overwrite=no", "overwrite must be true or false, got 'no' (str); e.g. overwrite=true"),
-        ("algo.compile=off", "algo.compile must be true or false, got 'off' (str)"),
+        ("algo.compile=off", "algo.compile must be false, true (= loss), loss or update, got 'off'"),
         ("logger.tensorboard=0", "logger.tensorboard must be true or false, got 0 (int)"),
         ("reward.disc.latch=yes", "reward.disc.latch must be true or false, got 'yes'"),
         ("algo.optim.lr=-1", "algo.optim.lr must be > 0, got -1"),

@@ -158,20 +158,23 @@ class ContinuousEnv:
     action_spec = Bounded(-1.0, 1.0, (ACT,))
 
 
-def sac_updater(seed=0, *, transform=None, hidden=(16, 16), utd=0.5, learning_starts=0):
+def sac_updater(seed=0, *, transform=None, hidden=(16, 16), utd=0.5, learning_starts=0, vmap=False, **kw):
     torch.manual_seed(seed)
     replay = ReplayBuffer(storage=LazyTensorStorage(1000), batch_size=32, transform=transform)
     u = make_sac_updater(
         ContinuousEnv(),
         replay,
-        loss=functools.partial(SACLoss, num_qvalue_nets=2, loss_function="l2", alpha_init=1.0, deactivate_vmap=True),
-        optim=functools.partial(torch.optim.Adam, lr=3e-4),
+        loss=functools.partial(
+            SACLoss, num_qvalue_nets=2, loss_function="l2", alpha_init=1.0, deactivate_vmap=not vmap
+        ),
+        optim=functools.partial(torch.optim.Adam, lr=3e-4, fused=kw.pop("fused", False)),
         target_update=functools.partial(SoftUpdate, tau=0.005),
         hidden=list(hidden),
         policy_in_keys=["observation", "stage_indicators"],
         gamma=0.8,
         utd=utd,
         learning_starts=learning_starts,
+        **kw,
     )
     return u
 
@@ -202,6 +205,54 @@ def test_a_sac_step_trains_actor_critics_and_alpha_and_moves_the_targets_by_tau(
     # the rewards it trained on: 32 of the stored transitions' own (reward = index, each at most once)
     assert rewards.shape == (32, 1) and set(rewards.reshape(-1).tolist()) <= set(range(200))
     assert rewards.reshape(-1).unique().numel() > 16  # drawn across the buffer, not one transition repeated
+
+
+@pytest.mark.slow
+def test_sac_compiled_whole_compiles_once_and_learns_as_eager_does(monkeypatch):
+    """``algo.compile=update`` (issue 64): loss, backward, Adam steps and target update as one compiled function,
+    compiled once for a run (no recompilation over many updates) and, on the same batches and the same random
+    numbers, the losses and weights of eager updates (to float rounding; inductor's fused kernels reorder sums)."""
+    import torch._dynamo
+    import torch._inductor.config
+    from torch._dynamo.utils import counters
+
+    monkeypatch.setattr(torch._inductor.config, "fallback_random", True)  # eager's random numbers in the graph
+    torch._dynamo.reset()
+    counters.clear()
+    # the config's fused Adam and one-after-the-other critics: compile=update takes the plain Adam and the vmap
+    compiled = sac_updater(seed=1, compile="update", fused=True)
+    eager = sac_updater(seed=1, vmap=True)
+    assert compiled.compile_scope == "update" and not compiled.optimizers["critic"].defaults["fused"]
+    data = transitions(400)
+    for u in (eager, compiled):
+        u.extend(data)
+    for i in range(4):
+        torch.manual_seed(100 + i)
+        want, _ = eager.step()
+        torch.manual_seed(100 + i)
+        got, _ = compiled.step()
+        for k in ("loss_actor", "loss_qvalue", "loss_alpha", "alpha"):
+            torch.testing.assert_close(got[k], want[k], rtol=1e-4, atol=1e-5)
+    for name in ("actor_network_params", "qvalue_network_params", "target_qvalue_network_params"):
+        a, b = getattr(compiled.loss, name), getattr(eager.loss, name)
+        for k, v in a.items(True, True):
+            torch.testing.assert_close(v, b[k], rtol=1e-4, atol=1e-5)
+    graphs = counters["stats"]["unique_graphs"]
+    assert graphs > 0  # it was compiled
+    for _ in range(25):
+        compiled.step()
+    assert counters["stats"]["unique_graphs"] == graphs, "the whole update recompiled"
+    assert compiled.updates == 29
+
+
+def test_algo_compile_takes_a_scope_and_update_refuses_low_precision():
+    from drs_torchrl.updaters.sac import compile_scope
+
+    assert [compile_scope(v) for v in (False, None, True, "loss", "Update")] == [None, None, "loss", "loss", "update"]
+    with pytest.raises(ValueError, match="algo.compile must be false, true .= loss., loss or update, got 'off'"):
+        compile_scope("off")
+    with pytest.raises(ValueError, match="use algo.precision=fp32 with it .got bf16."):
+        sac_updater(compile="update", precision="bf16")
 
 
 def test_a_sac_step_trains_on_the_reward_its_replay_buffer_recomputes_at_sampling():

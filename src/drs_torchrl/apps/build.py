@@ -31,14 +31,8 @@ from drs_torchrl.runtime.checkpoint import (
     rng_state,
     set_rng_state,
 )
-from drs_torchrl.data.demo_mix import (
-    AUTO_SAC_SHARE,
-    carries_actions,
-    demo_replay_buffer,
-    requested_sac_share,
-    share_problems,
-)
-from drs_torchrl.demos import check_demos, load_demos, restage_demos, variant_mismatches
+from drs_torchrl.data.demo_mix import demo_replay_buffer, plan_demo_use, requested_sac_share
+from drs_torchrl.demos.store import demos_for_run
 from drs_torchrl.envs.factory import make_family_env
 from drs_torchrl.runtime.errors import ConfigError
 from drs_torchrl.loop import EpisodeWindow, Progress, Schedule, aggregate_episodes, episode_summary, run_algorithm1
@@ -46,10 +40,15 @@ from drs_torchrl.models import POLICY_FORMAT, read_policy_checkpoint
 from drs_torchrl.precision import describe_precision, grad_scaler, resolve_precision
 from drs_torchrl.runtime.provenance import code_version
 from drs_torchrl.rewards import is_learned, reused_reward_settings, reward_setup
-from drs_torchrl.runtime.run_logger import RunLogger
 from drs_torchrl.runtime.signals import worker_env
 from drs_torchrl.tasks import TASK_OBSERVATION_KEY, family_from_config
-from drs_torchrl.apps.factories import make_collector, make_envs, make_replay_buffer, make_reward_learner
+from drs_torchrl.apps.factories import (
+    make_collector,
+    make_envs,
+    make_logger,
+    make_replay_buffer,
+    make_reward_learner,
+)
 from drs_torchrl.apps.validation import collector_for_device, collects_in_background, validate_config
 from drs_torchrl.transforms.classifier_reward import ClassifierReward
 from drs_torchrl.updaters.base import backward_and_step
@@ -89,113 +88,123 @@ class Run:
         self.env = self.eval_env = self.collector = self.logger = None
         self.training = False  # from the first env step on, a KeyError or ValueError is a bug, not a setting
         try:
-            self._build(cfg, phase, run_dir, resume)
-        except BaseException:
+            validate_config(cfg, phase, resume)
+            self.cfg, self.phase, self.run_dir = cfg, phase, Path(run_dir)
+            self.run_dir.mkdir(parents=True, exist_ok=True)
+            if resume:
+                find_training_state(self.run_dir)  # fail before building anything
+            seed_everything(int(cfg.seed))
+            if cfg.get("torch_threads"):
+                torch.set_num_threads(int(cfg.torch_threads))
+            self.device = device = _resolve_device(str(cfg.device))
+            # what this run resolves (auto settings, a reused reward's settings), by dotted key: computed once here and
+            # recorded once, in config.yaml, so that a resume on another machine runs as this run did; the composed
+            # config itself is not written to (self.setting reads the two together)
+            self.resolved: dict[str, Any] = {}
+            # algo.precision: autocast of the learner's forward passes, fp32 master weights (drs_torchrl.precision)
+            self.precision = resolve_precision(str(cfg.algo.get("precision") or "fp32"), device)
+            if cfg.algo.get("precision") == "auto":
+                self.resolved["algo.precision"] = self.precision
+            scaler = grad_scaler(self.precision, device)
+            self.collector_cfg, note = collector_for_device(cfg.algo.collector, device)
+            self.notes = [note] if note else []  # printed when the run starts
+            if note:
+                self.resolved["algo.collector"] = OmegaConf.to_container(self.collector_cfg)
+
+            # the reward slot: static rewards and frozen learned ones are env transforms; phase 1 builds a learner
+            self.reward = reward = reward_setup(cfg.reward, phase)
+            frozen, notes = reused_reward_settings(
+                cfg.reward, reward.frozen
+            )  # a reused reward is used as it was learned
+            self.notes += notes
+            self.resolved.update({f"reward.{k}": v for k, v in frozen.items()})
+            reads = list(self.setting("reward.in_keys") or getattr(reward.frozen, "reward_in_keys", None) or ())
+            if TASK_OBSERVATION_KEY in reads and not cfg.env.get("task_observation"):
+                self.resolved["env.task_observation"] = True  # the reward reads the task state: the env writes it
+            self.family = family = family_from_config(cfg.env, task_observation=self.setting("env.task_observation"))
+            self.env, self.eval_env, self._env_kwargs = make_envs(cfg, family, reward, device)
+
+            # phase 1 of a learned reward: the demonstrations, how they are used, and the reward learner
+            learns = phase == "learn" and is_learned(cfg.reward)
+            demos_cfg = cfg.get("demos") or {}
+            # a resumed DrS run has its demonstrations in its stage-buffer snapshot (the file is read again only for
+            # demos.sac_share); the classifiers keep theirs apart from their data and read the file again
+            reread = not resume or reward.name != "drs" or requested_sac_share(demos_cfg.get("sac_share")) != 0
+            demos = self._demonstrations(demos_cfg) if learns and reread else None
+            use = plan_demo_use(
+                demos,
+                stage_buffers=demos_cfg.get("stage_buffers", True),
+                sac_share=demos_cfg.get("sac_share"),
+                path=demos_cfg.get("path"),
+                reward_name=reward.name,
+                learned=learns,
+                action_dim=int(self.env.action_spec.shape[-1]),
+                control_mode=self._control_mode(cfg),
+                root_keys=list(cfg.algo.policy_in_keys),
+            )
+            self.resolved.update(use.resolved)
+            for note in use.notes:
+                tqdm.write(f"drs-{phase}: {note}")
+            self.num_demos, self.learner = len(demos or ()), None
+            if learns:
+                self.learner = make_reward_learner(
+                    cfg,
+                    family,
+                    self.env,
+                    device,
+                    self.precision,
+                    functools.partial(backward_and_step, scaler),
+                    demos=demos if use.stage_buffers and not (resume and reward.name == "drs") else None,
+                )
+                reward.learned = self.learner.reward
+            self.learned = reward.learned
+            formula = getattr(self.learned if self.learned is not None else reward.frozen, "formula", None)
+            if formula in ("paper", "sum") and family.backend == "maniskill":
+                self.notes.append(
+                    f"reward.formula={formula} gives rewards near or above 0 while a ManiSkill episode ends on success, "
+                    "so an agent may earn more by staying just short of success; formula=rescaled (the default, the "
+                    "authors' code) keeps every reward below 0"
+                )
+
+            # the algorithm: an off-policy one samples a replay buffer whose transform recomputes the learned reward
+            # (Algorithm 1, line 18), with the demonstrations' share of each batch (demos.sac_share)
+            demo_replay, demo_batch = None, 0
+            if use.sac_share > 0:
+                demo_replay = demo_replay_buffer(demos, list(cfg.algo.policy_in_keys), self.learned, device)
+                demo_batch = max(1, round(use.sac_share * int(cfg.algo.batch_size)))
+            replay = None
+            if cfg.algo.get("replay_buffer") is not None:
+                replay = make_replay_buffer(cfg, self.learned, device, int(cfg.algo.batch_size) - demo_batch)
+                if self.learner is not None:
+                    self.learner.attach(replay)  # GAIL draws the agent's transitions from it
+            self.updater = instantiate(cfg.algo.updater)(  # e.g. updaters.sac.make_sac_updater (conf/algo/)
+                self.env,
+                replay,
+                device=device,
+                precision=self.precision,
+                grad_scaler=scaler,
+                demo_replay=demo_replay,
+                demo_batch=demo_batch,
+                reward=self.learned,
+            )
+            self.actor = self.updater.eval_policy
+            if cfg.get("init_from") and not resume:  # Sec. 5.4.2: fine-tune a phase-1 agent instead of a fresh one
+                self._init_from(cfg.init_from)
+
+            self.checkpointer = Checkpointer(self.run_dir, self.updater.buffers, self.learner)
+            self.progress = Progress()
+            self.episodes = EpisodeWindow(int(cfg.logger.episode_window), family.num_stages, self.episode_reward)
+            if resume:
+                self.load_training_state()
+                self.progress.resumed_from = self.frames
+                self.env.set_seed(int(cfg.seed) + 1 + self.frames)  # fresh episodes, not the first run's
+            self._segment_from, self._segment_start = self.frames, time.perf_counter()  # this process's part of the run
+            self.logger = make_logger(cfg.logger, self.run_dir, resume_step=self.progress.resumed_from)
+            # written last: a run that fails to start (or to resume) leaves the directory as it was
+            save_config(cfg, self.run_dir / "config.yaml", self.resolved)
+        except BaseException:  # what was built (envs, a logger) is closed; the run directory is as it was
             self.close()
             raise
-
-    def _build(self, cfg: DictConfig, phase: str, run_dir: str | Path, resume: bool) -> None:
-        validate_config(cfg, phase, resume)
-        self.cfg, self.phase, self.run_dir = cfg, phase, Path(run_dir)
-        self.run_dir.mkdir(parents=True, exist_ok=True)
-        if resume:
-            find_training_state(self.run_dir)  # fail before building anything
-        seed_everything(int(cfg.seed))
-        if cfg.get("torch_threads"):
-            torch.set_num_threads(int(cfg.torch_threads))
-        self.device = device = _resolve_device(str(cfg.device))
-        # what this run resolves (auto settings, a reused reward's settings), by dotted key: computed once here and
-        # recorded once, in config.yaml, so that a resume on another machine runs as this run did; the composed
-        # config itself is not written to (self.setting reads the two together)
-        self.resolved: dict[str, Any] = {}
-        # algo.precision: autocast of the learner's forward passes, fp32 master weights (drs_torchrl.precision)
-        self.precision = resolve_precision(str(cfg.algo.get("precision") or "fp32"), device)
-        if cfg.algo.get("precision") == "auto":
-            self.resolved["algo.precision"] = self.precision
-        scaler = grad_scaler(self.precision, device)
-        self.collector_cfg, note = collector_for_device(cfg.algo.collector, device)
-        self.notes = [note] if note else []  # printed when the run starts
-        if note:
-            self.resolved["algo.collector"] = OmegaConf.to_container(self.collector_cfg)
-
-        # the reward slot: static rewards and frozen learned ones are env transforms; phase 1 builds a learner
-        self.reward = reward = reward_setup(cfg.reward, phase)
-        frozen, notes = reused_reward_settings(cfg.reward, reward.frozen)  # a reused reward is used as it was learned
-        self.notes += notes
-        self.resolved.update({f"reward.{k}": v for k, v in frozen.items()})
-        reads = list(self.setting("reward.in_keys") or getattr(reward.frozen, "reward_in_keys", None) or ())
-        if TASK_OBSERVATION_KEY in reads and not cfg.env.get("task_observation"):
-            self.resolved["env.task_observation"] = True  # the reward reads the task state: the env writes it
-        self.family = family = family_from_config(cfg.env, task_observation=self.setting("env.task_observation"))
-        self.env, self.eval_env, self._env_kwargs = make_envs(cfg, family, reward, device)
-
-        self.num_demos, demos, self.learner = 0, None, None
-        if phase == "learn" and is_learned(cfg.reward):
-            # a resumed DrS run has its demonstrations in its stage-buffer snapshot (the file is read again only
-            # for demos.sac_share); the classifiers keep theirs apart from their data and read the file again
-            asked = requested_sac_share((cfg.get("demos") or {}).get("sac_share"))
-            demos = self._demonstrations(cfg, family) if (not resume or reward.name != "drs" or asked != 0) else None
-            filed = demos if self._resolve_stage_buffers(cfg, demos, asked) else None
-            self.learner = make_reward_learner(
-                cfg,
-                family,
-                self.env,
-                device,
-                self.precision,
-                functools.partial(backward_and_step, scaler),
-                demos=None if (resume and reward.name == "drs") else filed,
-            )
-            reward.learned = self.learner.reward
-        self.learned = reward.learned
-        formula = getattr(self.learned if self.learned is not None else reward.frozen, "formula", None)
-        if formula in ("paper", "sum") and family.backend == "maniskill":
-            self.notes.append(
-                f"reward.formula={formula} gives rewards near or above 0 while a ManiSkill episode ends on success, "
-                "so an agent may earn more by staying just short of success; formula=rescaled (the default, the "
-                "authors' code) keeps every reward below 0"
-            )
-
-        # the algorithm: an off-policy one samples a replay buffer whose transform recomputes the learned reward
-        # (Algorithm 1, line 18), with the demonstrations' share of each batch (demos.sac_share)
-        demo_replay, demo_batch = self._demo_mix(cfg, demos if self.learner is not None else None)
-        replay = None
-        if cfg.algo.get("replay_buffer") is not None:
-            replay = make_replay_buffer(cfg, self.learned, device, int(cfg.algo.batch_size) - demo_batch)
-            if self.learner is not None:
-                self.learner.attach(replay)  # GAIL draws the agent's transitions from it
-        self.updater = instantiate(cfg.algo.updater)(
-            self.env,
-            replay,
-            device=device,
-            precision=self.precision,
-            grad_scaler=scaler,
-            demo_replay=demo_replay,
-            demo_batch=demo_batch,
-            reward=self.learned,
-        )
-        self.actor = self.updater.eval_policy
-        if cfg.get("init_from") and not resume:  # Sec. 5.4.2: fine-tune a phase-1 agent instead of a fresh one
-            self._init_from(cfg.init_from)
-
-        self.checkpointer = Checkpointer(self.run_dir, self.updater.buffers, self.learner)
-        self.progress = Progress()
-        self.episodes = EpisodeWindow(int(cfg.logger.episode_window), family.num_stages, self.episode_reward)
-        if resume:
-            self.load_training_state()
-            self.progress.resumed_from = self.frames
-            self.env.set_seed(int(cfg.seed) + 1 + self.frames)  # fresh episodes, not the first run's
-        self._segment_from, self._segment_start = self.frames, time.perf_counter()  # this process's part of the run
-        self.logger = RunLogger(
-            self.run_dir,
-            tensorboard=cfg.logger.tensorboard,
-            csv_files=cfg.logger.csv,
-            resume_step=self.progress.resumed_from,
-            wandb=bool(cfg.logger.get("wandb", False)),
-            wandb_project=cfg.logger.get("wandb_project", "drs-torchrl"),
-            wandb_mode=cfg.logger.get("wandb_mode", "offline"),
-        )
-        # written last: a run that fails to start (or to resume) leaves the directory as it was
-        save_config(cfg, self.run_dir / "config.yaml", self.resolved)
 
     def setting(self, key: str, default: Any = None) -> Any:
         """A setting as this run uses it: what the run resolved (:attr:`resolved`), else the composed config's."""
@@ -217,126 +226,33 @@ class Run:
         return self.learned.reward(episode if isinstance(self.learned, ClassifierReward) else episode.get("next"))
 
     # ------------------------------------------------------------------ demonstrations
-    def _demonstrations(self, cfg, family) -> list | None:
+    def _demonstrations(self, demos_cfg) -> list | None:
         """The episodes of ``demos.path`` (``demos.num`` of them), checked against this task, or None."""
-        demos = cfg.get("demos") or {}
-        if not demos.get("path"):
+        if not demos_cfg.get("path"):
             return None
-        episodes, meta = load_demos(demos["path"])
-        if list(meta["stage_keys"]) != list(family.stage_keys) and set(family.stage_keys) <= set(meta["stage_keys"]):
-            # a stage ablation (env.stages): the demonstrations keep every indicator, so relabel them
-            episodes, meta = restage_demos(episodes, meta, family.stage_keys)
-        mismatched = variant_mismatches(meta, cfg.env.get("variant_overrides"))
-        if mismatched:
-            overrides = " ".join(
-                f"--override {k}={v}" for k, v in OmegaConf.to_container(cfg.env.variant_overrides).items()
-            )
-            tqdm.write(
-                f"drs-{self.phase}: warning: {demos['path']} were recorded without this run's env.variant_overrides "
-                f"{'; '.join(mismatched)}: their stages follow the recording's task. To match, record them with "
-                f"drs-demos --family {family.name} {overrides} --out NEW.demos"
-            )
-        in_keys = list(cfg.reward.get("in_keys") or family.reward_in_keys)
-        spec = self.env.observation_spec
-        check_demos(
-            meta, family, {k: int(spec[k].shape[-1]) for k in in_keys if k in spec.keys(True, True)}, demos["path"]
+        cfg, spec = self.cfg, self.env.observation_spec
+        in_keys = list(cfg.reward.get("in_keys") or self.family.reward_in_keys)
+        overrides = cfg.env.get("variant_overrides")
+        episodes, warnings = demos_for_run(
+            demos_cfg["path"],
+            self.family,
+            num=demos_cfg.get("num"),
+            in_sizes={k: int(spec[k].shape[-1]) for k in in_keys if k in spec.keys(True, True)},
+            variant_overrides=OmegaConf.to_container(overrides) if overrides else None,
+            reward_name=str(cfg.reward.name),
+            use_action=bool(cfg.reward.get("use_action")),
+            action_size=int(self.env.action_spec.shape[-1]),
+            control_mode=self._control_mode(cfg),
         )
-        n = len(episodes) if demos.get("num") is None else int(demos["num"])
-        if n > len(episodes):
-            raise ConfigError(f"demos.num={n} but {demos['path']} holds only {len(episodes)} demonstrations")
-        if cfg.reward.get("use_action"):  # (s, a) rewards need the agent's own actions
-            acts = meta.get("actions")
-            mode = self._control_mode(cfg)
-            if acts is None:
-                raise ConfigError(
-                    f"reward={cfg.reward.name} reads (s, a), but {demos['path']} holds states only (planner "
-                    "demonstrations, or recorded before actions were kept); record demonstrations with "
-                    "drs-demos --from-policy RUN_DIR, or use reward.use_action=false"
-                )
-            if acts["control_mode"] != mode or int(acts["size"]) != int(self.env.action_spec.shape[-1]):
-                raise ConfigError(
-                    f"the actions in {demos['path']} are {acts['size']}-dimensional {acts['control_mode']} "
-                    f"commands; this run acts with {int(self.env.action_spec.shape[-1])}-dimensional {mode}"
-                )
-        self.num_demos = n
-        return episodes[:n]
+        for warning in warnings:
+            tqdm.write(f"drs-{self.phase}: warning: {warning}")
+        return episodes
 
     def _control_mode(self, cfg) -> str:
         """The controller this run's agent acts with (env.control_mode, else its split's, else the family's)."""
         return (
             cfg.env.control_mode or self.family.env_args(cfg.env.split).get("control_mode") or self.family.control_mode
         )
-
-    def _resolve_stage_buffers(self, cfg, demos, asked) -> bool:
-        """``demos.stage_buffers``: true / false as asked; ``auto`` (the default recipe, docs/recipe.md) keeps
-        DrS's demonstrations out of the stage buffers when they can feed the SAC batch (they carry the agent's
-        actions and ``demos.sac_share`` is not 0), so the positives are the agent's own successes; saved resolved."""
-        want = (cfg.get("demos") or {}).get("stage_buffers", True)
-        if want != "auto":
-            return bool(want)
-        if not demos:  # nothing to file: auto stays auto (a fresh run from this config is refused nothing)
-            return True
-        action_dim = int(self.env.action_spec.shape[-1])
-        sac_only = self.reward.name == "drs" and asked != 0 and carries_actions(demos, action_dim)
-        tqdm.write(
-            f"drs-{self.phase}: demos.stage_buffers=auto -> {str(not sac_only).lower()}: "
-            + (
-                "the demonstrations feed the SAC batch only; the discriminators' positives are the agent's own successes"
-                if sac_only
-                else "the demonstrations go into the top stage buffer (the paper's Algorithm 1, line 3)"
-            )
-        )
-        self.resolved["demos.stage_buffers"] = not sac_only
-        return not sac_only
-
-    def _demo_mix(self, cfg, demos):
-        """RLPD-style share of demonstrations in every SAC batch (``demos.sac_share``, :mod:`drs_torchrl.data.demo_mix`).
-        ``auto`` (the default) takes :data:`AUTO_SAC_SHARE` where the demonstrations allow it and says so, 0 where
-        they do not and says why. Returns ``(buffer, transitions per batch)`` or ``(None, 0)``."""
-        asked = requested_sac_share((cfg.get("demos") or {}).get("sac_share"))
-        if asked == 0:
-            return self._check_demos_used(cfg, demos, 0)
-        if asked is None and not demos:  # auto, and no demonstrations (or no reward learned here): nothing to share
-            self.resolved["demos.sac_share"] = 0.0
-            return None, 0
-        root_keys = list(cfg.algo.policy_in_keys)
-        problems = share_problems(
-            demos,
-            cfg.demos.path,
-            int(self.env.action_spec.shape[-1]),
-            self._control_mode(cfg),
-            root_keys,
-            self.learner is not None,
-        )
-        if asked is None:
-            share = 0.0 if problems else AUTO_SAC_SHARE
-            tqdm.write(
-                f"drs-{self.phase}: demos.sac_share=auto -> {share:g}: "
-                + (
-                    problems[0]
-                    if problems
-                    else f"a share of every SAC batch from the {len(demos)} demonstrations' transitions "
-                    "(beyond the paper: demos.sac_share=0 is its phase 1; results/demos_compare/pick_cube/)"
-                )
-            )
-            self.resolved["demos.sac_share"] = share  # recorded: a resume keeps this run's choice
-            if share == 0:
-                return self._check_demos_used(cfg, demos, 0)
-        elif problems:
-            raise ConfigError(problems[0])
-        else:
-            share = asked
-        buffer = demo_replay_buffer(demos, root_keys, self.learned, self.device)
-        return buffer, max(1, round(share * int(cfg.algo.batch_size)))
-
-    def _check_demos_used(self, cfg, demos, demo_batch):
-        if demos and self.setting("demos.stage_buffers", True) is False:
-            raise ConfigError(
-                f"demos.stage_buffers=false keeps the demonstrations out of the stage buffers, and demos.sac_share "
-                f"is {self.setting('demos.sac_share')}: they would not be used at all; set demos.sac_share=0.25 "
-                "(demonstrations with the agent's actions: drs-demos' default) or demos.stage_buffers=true"
-            )
-        return None, demo_batch
 
     def _init_from(self, run_dir) -> None:
         """Start from another run's ``checkpoints/policy.pt`` (fine-tuning, Sec. 5.4.2); optimisers and replay

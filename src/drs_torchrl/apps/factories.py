@@ -20,6 +20,7 @@ from torchrl.envs.transforms import DeviceCastTransform
 
 from drs_torchrl.envs.factory import make_family_env
 from drs_torchrl.precision import autocast
+from drs_torchrl.runtime.run_logger import RunLogger
 from drs_torchrl.rewards import RewardSetup, dense_offset, new_reward_learner
 from drs_torchrl.tasks import TaskFamily
 
@@ -28,6 +29,7 @@ __all__ = [
     "make_replay_buffer",
     "make_reward_learner",
     "make_collector",
+    "make_logger",
 ]
 
 
@@ -102,6 +104,20 @@ def make_reward_learner(
         autocast=functools.partial(autocast, precision, device),
         step_fn=step_fn,
         demos=demos,
+    )
+
+
+def make_logger(node: DictConfig, run_dir, resume_step: int | None = None) -> RunLogger:
+    """The ``logger`` node's :class:`~drs_torchrl.runtime.run_logger.RunLogger` in ``run_dir`` (CSV files,
+    TensorBoard, optionally Weights & Biases); ``resume_step``: a resumed run's env steps so far."""
+    return RunLogger(
+        run_dir,
+        tensorboard=node.tensorboard,
+        csv_files=node.csv,
+        resume_step=resume_step,
+        wandb=bool(node.get("wandb", False)),
+        wandb_project=node.get("wandb_project", "drs-torchrl"),
+        wandb_mode=node.get("wandb_mode", "offline"),
     )
 
 

@@ -79,7 +79,7 @@ class AlgoSchema:
     epochs: int = setting(gt=0, example=4)
     gamma: float = setting(gt=0, le=1, example=0.8)
     tau: float = setting(gt=0, le=1, example=0.005)
-    compile: bool = setting(example=False)
+    compile: Any = setting(example="update")  # false | true (= loss) | loss | update: updaters.sac.compile_scope
     hidden: List[int] = setting(gt=0, example="[256,256,256]", noun="layer widths, each")
     optim: OptimSchema = field(default_factory=OptimSchema)
 

@@ -13,6 +13,7 @@ from drs_torchrl.apps.overrides import check_constructor_arguments
 from drs_torchrl.apps.schema import RunSchema, check
 from drs_torchrl.data.demo_mix import requested_sac_share
 from drs_torchrl.runtime.errors import ConfigError
+from drs_torchrl.updaters.sac import compile_scope
 from drs_torchrl.transforms.reward import _ACTIVATIONS, FORMULAS
 
 __all__ = ["ConfigError", "validate_config", "collects_in_background", "collector_for_device"]
@@ -69,6 +70,10 @@ def validate_config(cfg: DictConfig, phase: str, resume: bool = False) -> None:
         if not ok:
             raise ConfigError(msg)
     requested_sac_share((cfg.get("demos") or {}).get("sac_share"))
+    try:
+        compile_scope(a.get("compile"))
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
     stage_buffers = (cfg.get("demos") or {}).get("stage_buffers", True)
     if stage_buffers not in (True, False, "auto"):
         raise ConfigError(f"demos.stage_buffers must be true, false or auto, got {stage_buffers!r}")

@@ -9,6 +9,8 @@ on what the demonstrations hold, and both parts must pass through the learned re
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import torch
 from tensordict import TensorDict
 from torchrl.data import LazyTensorStorage, ReplayBuffer
@@ -62,6 +64,80 @@ def share_problems(demos, path, action_dim: int, control_mode: str, root_keys, l
     if missing:
         return [f"demos.sac_share: the demonstrations' states lack {missing}, which SAC reads"]
     return []
+
+
+@dataclass
+class DemoUse:
+    """How a run uses its demonstrations: filed into the top stage buffer (Algorithm 1, line 3) and/or a share of
+    every SAC batch; ``resolved`` holds what an ``auto`` setting chose (by dotted key, recorded in config.yaml),
+    ``notes`` says why."""
+
+    stage_buffers: bool = True
+    sac_share: float = 0.0
+    resolved: dict = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+
+def plan_demo_use(
+    demos,
+    *,
+    stage_buffers="auto",
+    sac_share="auto",
+    path=None,
+    reward_name: str = "drs",
+    learned: bool = True,
+    action_dim: int = 0,
+    control_mode: str | None = None,
+    root_keys=(),
+) -> DemoUse:
+    """``demos.stage_buffers`` and ``demos.sac_share`` resolved for ``demos`` (None: none loaded). ``auto`` shares
+    :data:`AUTO_SAC_SHARE` of each batch where the demonstrations carry the agent's actions and a reward ``learned``
+    in this run rewards them, else 0 (saying why); for DrS a share keeps them out of the stage buffers (the recipe,
+    docs/recipe.md), so the discriminators' positives are the agent's own successes. Raises :class:`ConfigError` for
+    an asked share the demonstrations cannot fill, or demonstrations that would not be used at all."""
+    asked = requested_sac_share(sac_share)
+    use = DemoUse()
+    if stage_buffers != "auto":
+        use.stage_buffers = bool(stage_buffers)
+    elif demos:  # (with nothing to file, auto stays auto: a fresh run from this config is refused nothing)
+        use.stage_buffers = not (reward_name == "drs" and asked != 0 and carries_actions(demos, action_dim))
+        use.resolved["demos.stage_buffers"] = use.stage_buffers
+        use.notes.append(
+            f"demos.stage_buffers=auto -> {str(use.stage_buffers).lower()}: "
+            + (
+                "the demonstrations go into the top stage buffer (the paper's Algorithm 1, line 3)"
+                if use.stage_buffers
+                else "the demonstrations feed the SAC batch only; the discriminators' positives are the agent's own "
+                "successes"
+            )
+        )
+    if asked is None and not demos:  # auto, and no demonstrations (or no reward learned here): nothing to share
+        use.resolved["demos.sac_share"] = 0.0
+        return use
+    if asked != 0:
+        problems = share_problems(demos, path, action_dim, control_mode, root_keys, learned)
+        if asked is not None and problems:
+            raise ConfigError(problems[0])
+        use.sac_share = asked if asked is not None else (0.0 if problems else AUTO_SAC_SHARE)
+        if asked is None:
+            use.resolved["demos.sac_share"] = use.sac_share  # recorded: a resume keeps this run's choice
+            use.notes.append(
+                f"demos.sac_share=auto -> {use.sac_share:g}: "
+                + (
+                    problems[0]
+                    if problems
+                    else f"a share of every SAC batch from the {len(demos)} demonstrations' transitions "
+                    "(beyond the paper: demos.sac_share=0 is its phase 1; results/demos_compare/pick_cube/)"
+                )
+            )
+    if demos and use.sac_share == 0 and use.stage_buffers is False:
+        shown = use.resolved.get("demos.sac_share", sac_share)
+        raise ConfigError(
+            f"demos.stage_buffers=false keeps the demonstrations out of the stage buffers, and demos.sac_share "
+            f"is {shown}: they would not be used at all; set demos.sac_share=0.25 "
+            "(demonstrations with the agent's actions: drs-demos' default) or demos.stage_buffers=true"
+        )
+    return use
 
 
 def demo_transitions(demos, root_keys, next_keys) -> TensorDict:

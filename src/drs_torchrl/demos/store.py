@@ -324,3 +324,50 @@ def check_demos(meta: dict, family: TaskFamily, in_shapes: dict[str, int], path:
             problems.append(f"their {k!r} has size {have}, the env's has size {d}")
     if problems:
         raise DemoError(f"demonstrations {path} do not match the task: " + "; ".join(problems))
+
+
+def demos_for_run(
+    path: str | Path,
+    family: TaskFamily,
+    *,
+    num: int | None,
+    in_sizes: dict[str, int],
+    variant_overrides: dict | None = None,
+    reward_name: str = "drs",
+    use_action: bool = False,
+    action_size: int | None = None,
+    control_mode: str | None = None,
+) -> tuple[list[TensorDict], list[str]]:
+    """The first ``num`` (None: all) episodes of ``path`` for a run of ``family`` (Algorithm 1, line 3), checked:
+    relabelled under the run's stages for a stage ablation; their shapes against ``in_sizes`` (the reward's inputs);
+    for a reward that reads (s, a), their actions against the agent's ``action_size`` and ``control_mode``.
+    Returns ``(episodes, warnings)``: a warning names variant overrides they were recorded without."""
+    episodes, meta = load_demos(path)
+    if list(meta["stage_keys"]) != list(family.stage_keys) and set(family.stage_keys) <= set(meta["stage_keys"]):
+        episodes, meta = restage_demos(episodes, meta, family.stage_keys)  # a stage ablation (env.stages)
+    warnings = []
+    if mismatched := variant_mismatches(meta, variant_overrides):
+        overrides = " ".join(f"--override {k}={v}" for k, v in (variant_overrides or {}).items())
+        warnings.append(
+            f"{path} were recorded without this run's env.variant_overrides {'; '.join(mismatched)}: their stages "
+            f"follow the recording's task. To match, record them with drs-demos --family {family.name} {overrides} "
+            "--out NEW.demos"
+        )
+    check_demos(meta, family, in_sizes, path)
+    n = len(episodes) if num is None else int(num)
+    if n > len(episodes):
+        raise DemoError(f"demos.num={n} but {path} holds only {len(episodes)} demonstrations")
+    if use_action:  # (s, a) rewards need the agent's own actions
+        acts = meta.get("actions")
+        if acts is None:
+            raise DemoError(
+                f"reward={reward_name} reads (s, a), but {path} holds states only (planner demonstrations, or "
+                "recorded before actions were kept); record demonstrations with drs-demos --from-policy RUN_DIR, "
+                "or use reward.use_action=false"
+            )
+        if acts["control_mode"] != control_mode or int(acts["size"]) != int(action_size):
+            raise DemoError(
+                f"the actions in {path} are {acts['size']}-dimensional {acts['control_mode']} commands; this run "
+                f"acts with {int(action_size)}-dimensional {control_mode}"
+            )
+    return episodes[:n], warnings

@@ -4,6 +4,7 @@ line 18); with demonstrations, a share of every batch comes from them (:mod:`drs
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -27,7 +28,9 @@ class SACUpdater(Updater):
         utd: updates per env step; learning_starts: env steps before the first update.
         demo_replay, demo_batch: the demonstrations' buffer and their transitions per batch (or None, 0).
         precision, device, grad_scaler: autocast of the forward passes (:mod:`drs_torchrl.precision`).
-        compile_kwargs: not None: ``torch.compile`` the loss's forward with them.
+        compile: None, ``"loss"`` (``torch.compile`` the loss's forward) or ``"update"`` (loss, backward, optimiser
+            steps and target update as one compiled function, as TorchRL's ``sota-implementations/sac``), with
+            ``compile_kwargs``; see :data:`COMPILE_SCOPES`.
     """
 
     name = "sac"
@@ -50,6 +53,7 @@ class SACUpdater(Updater):
         precision: str = "fp32",
         device: torch.device | str = "cpu",
         grad_scaler=None,
+        compile: str | None = None,
         compile_kwargs: dict | None = None,
         critic_norm: str | None = None,
         actor_norm: str | None = None,
@@ -70,7 +74,12 @@ class SACUpdater(Updater):
         self.learning_starts = int(learning_starts)
         self.policy_in_keys, self.hidden = list(policy_in_keys), list(hidden)
         self.precision, self.device, self.grad_scaler = precision, torch.device(device), grad_scaler
-        self._loss_fn = torch.compile(loss, **compile_kwargs) if compile_kwargs is not None else loss
+        self.compile_scope = compile_scope(compile)
+        if self.compile_scope == "update" and grad_scaler is not None:
+            raise ValueError("algo.compile=update does not take fp16's gradient scaler: use bf16 or fp32")
+        kw = dict(compile_kwargs or {})
+        self._loss_fn = torch.compile(loss, **kw) if self.compile_scope == "loss" else loss
+        self._learn_fn = torch.compile(self._learn, **kw) if self.compile_scope == "update" else self._learn
         # the actor's intermediate outputs and the collector's bookkeeping are not stored: SACLoss recomputes the
         # former, nothing reads the latter, and every extra key costs at each sample
         self._exclude: tuple | None = None
@@ -113,24 +122,33 @@ class SACUpdater(Updater):
         for net in nets:
             net.train()
         try:
-            with autocast(self.precision, self.device):
-                out = self._loss_fn(sample)
+            # the actor and alpha learn every policy_delay-th update (TD3, CrossQ), the critics every update
+            stats, total = self._learn_fn(sample, self.updates % self.policy_delay == 0)
         finally:
             for net in nets:
                 net.eval()
-        # the actor and alpha learn every policy_delay-th update (TD3, CrossQ), the critics every update
-        policy_step = self.updates % self.policy_delay == 0
+        if self.compile_scope == "update":
+            # eager, the loss is checked before the step; compiled whole, after it: nothing is lost, as the run then
+            # stops without saving and its last checkpoint stays as it was
+            check_finite("SAC loss", total)
+        self.updates += 1
+        return stats, sample.get(("next", "reward")).detach()
+
+    def _learn(self, sample: TensorDictBase, policy_step: bool) -> tuple[TensorDict, torch.Tensor]:
+        """Loss, backward, optimiser steps and target update on ``sample``: the part ``algo.compile=update``
+        compiles as one function (one graph per value of ``policy_step``)."""
+        with autocast(self.precision, self.device):
+            out = self._loss_fn(sample)
         total = out["loss_qvalue"] + (out["loss_actor"] + out["loss_alpha"] if policy_step else 0.0)
-        check_finite("SAC loss", total.detach())
+        if self.compile_scope != "update":
+            check_finite("SAC loss", total.detach())
         opts = list(self.optimizers.values()) if policy_step else [self.optimizers["critic"]]
         for opt in self.optimizers.values():
             opt.zero_grad(set_to_none=True)
         backward_and_step(self.grad_scaler, total, opts)
         if self.target_updater is not None:  # CrossQ has no target networks
             self.target_updater.step()
-        self.updates += 1
-        stats = out.detach().select("loss_actor", "loss_qvalue", "loss_alpha", "alpha", "entropy")
-        return stats, sample.get(("next", "reward")).detach()
+        return out.detach().select("loss_actor", "loss_qvalue", "loss_alpha", "alpha", "entropy"), total.detach()
 
     def state_dict(self) -> dict[str, Any]:
         return {
@@ -192,6 +210,36 @@ class SACUpdater(Updater):
         return []
 
 
+COMPILE_SCOPES = {
+    "loss": "torch.compile of the loss's forward (backward and optimiser steps eager)",
+    "update": "loss, backward, optimiser steps and target update compiled as one function (fp32; the twin critics "
+    "in one vmap, Adam unfused)",
+}
+
+
+def compile_scope(value) -> str | None:
+    """``algo.compile`` as a scope: false/None -> None, true -> ``"loss"`` (what ``true`` always meant), or a key of
+    :data:`COMPILE_SCOPES`."""
+    if value is None or value is False:
+        return None
+    if value is True:
+        return "loss"
+    if isinstance(value, str) and value.lower() in COMPILE_SCOPES:
+        return value.lower()
+    raise ValueError(
+        f"algo.compile must be false, true (= loss), loss or update, got {value!r}; "
+        + "; ".join(f"{k}: {v}" for k, v in COMPILE_SCOPES.items())
+    )
+
+
+def _unfused(optim: Callable) -> Callable:
+    """``optim`` (a partial of a torch optimiser) without ``fused=True``."""
+    kw = getattr(optim, "keywords", None)
+    if not kw or not kw.get("fused"):
+        return optim
+    return functools.partial(optim.func, *optim.args, **{**kw, "fused": False})
+
+
 def make_sac_updater(
     env,
     replay: ReplayBuffer,
@@ -210,7 +258,7 @@ def make_sac_updater(
     reward=None,
     demo_replay: ReplayBuffer | None = None,
     demo_batch: int = 0,
-    compile: bool = False,
+    compile: bool | str = False,
     compile_kwargs: dict | None = None,
     critic_norm: str | None = None,
     actor_norm: str | None = None,
@@ -231,7 +279,18 @@ def make_sac_updater(
         critic_norm=critic_norm, actor_norm=actor_norm,
     )  # fmt: skip
     kwargs = {}
-    if precision != "fp32":
+    if compile_scope(compile) == "update":
+        # compiled whole, the twin critics run in one vmap: one after the other, TorchRL's functional calls change
+        # a pytree registry that the compiled graph's guards read, and it recompiles at every update
+        if precision != "fp32":
+            raise ValueError(
+                f"algo.compile=update runs the critics in one torch.vmap, which autocast does not reach: use "
+                f"algo.precision=fp32 with it (got {precision}), or algo.compile=loss"
+            )
+        kwargs["deactivate_vmap"] = False
+        # the fused Adam kernel is not traced (a graph break each step): the compiled graph holds the plain one
+        optim = _unfused(optim)
+    elif precision != "fp32":
         # torch.autocast does not reach inside torch.vmap (the twin critics' batched pass would stay fp32):
         # in low precision the critics are evaluated one after the other, whatever algo.loss says
         kwargs["deactivate_vmap"] = True
@@ -258,7 +317,8 @@ def make_sac_updater(
         precision=precision,
         device=device,
         grad_scaler=grad_scaler,
-        compile_kwargs=(compile_kwargs or {}) if compile else None,
+        compile=compile,
+        compile_kwargs=compile_kwargs,
         critic_norm=critic_norm,
         actor_norm=actor_norm,
         policy_delay=policy_delay,
