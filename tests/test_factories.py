@@ -5,9 +5,9 @@ import torch
 from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 
-from omegaconf import OmegaConf
 
-from drs_torchrl.rewards import available_rewards, is_learned, reward_setup
+from drs_torchrl.apps.reward_registry import available_rewards, registry_entry
+from drs_torchrl.rewards import is_learned, reward_setup
 from drs_torchrl.tasks import family_from_config
 from drs_torchrl.apps.cli import conf_dir
 from drs_torchrl.apps.factories import make_envs, make_replay_buffer
@@ -47,23 +47,26 @@ def test_factories_and_the_algo_updater_assemble_a_sac_update_on_a_family_env():
         ("sac_paper_utd025", 2048, 0.25, 2, 1024),
     ],
 )
-def test_reward_learner_steps_follow_the_algo_config(algo, batch, utd, disc_steps, disc_batch):
-    """Fewer, larger SAC updates keep the discriminators' steps per env step (issue 12): each learned
-    reward's ``disc.updates_per_sac_update`` comes from the algo config, and so does its batch per side
-    (``sac_paper``: the paper's 1024, Appendix E's one batch size); an explicit override wins."""
+def test_reward_learner_steps_follow_the_algo_config(algo, batch, utd, disc_steps, disc_batch, monkeypatch):
+    """Fewer, larger SAC updates keep the discriminators' steps per env step (issue 12): each learned reward's
+    learner steps ``algo.reward_updates_per_update`` times per RL update (one setting, in the algo config), and its
+    batch per side comes from the algo config (``sac_paper``: the paper's 1024, Appendix E's one batch size); an
+    explicit override wins."""
+    from drs_torchrl.apps import factories
+
+    seen = {}
+    monkeypatch.setattr(factories, "new_reward_learner", lambda *a, **kw: seen.update(kw))
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
-        learned = [n for n in available_rewards() if is_learned(OmegaConf.create({"name": n}))]
+        learned = [n for n in available_rewards() if is_learned(registry_entry(n))]
         assert {"drs", "vice_raq", "gail", "gail_stages", "oril"} <= set(learned)
         for reward in learned:  # every learned reward of the registry (conf/reward/)
             cfg = compose("learn", overrides=[f"algo={algo}", f"reward={reward}"])
-            got = (
-                cfg.algo.batch_size,
-                cfg.algo.utd,
-                cfg.reward.disc.updates_per_sac_update,
-                cfg.reward.disc.batch_size,
-            )
+            assert "updates_per_sac_update" not in cfg.reward.disc, "the rate has one name, the algo config's"
+            factories.make_reward_learner(cfg, family_from_config(cfg.env), None, "cpu", "fp32", None)
+            got = (cfg.algo.batch_size, cfg.algo.utd, seen["updates_per_rl_update"], cfg.reward.disc.batch_size)
             assert got == (batch, utd, disc_steps, disc_batch), reward
         cfg = compose(
-            "learn", overrides=[f"algo={algo}", "reward.disc.updates_per_sac_update=3", "reward.disc.batch_size=64"]
+            "learn", overrides=[f"algo={algo}", "algo.reward_updates_per_update=3", "reward.disc.batch_size=64"]
         )
-        assert (cfg.reward.disc.updates_per_sac_update, cfg.reward.disc.batch_size) == (3, 64)
+        factories.make_reward_learner(cfg, family_from_config(cfg.env), None, "cpu", "fp32", None)
+        assert (seen["updates_per_rl_update"], cfg.reward.disc.batch_size) == (3, 64)

@@ -160,20 +160,19 @@ def test_classifier_checkpoint_round_trip_and_reuse_checks(tmp_path):
 def test_reuse_refuses_a_checkpoint_of_another_method(tmp_path):
     from omegaconf import OmegaConf
 
+    from drs_torchrl.apps.reward_registry import with_builders
     from drs_torchrl.rewards import reward_setup
 
+    def node(**settings):  # a reward config node as composed from conf/reward/<name>.yaml
+        return with_builders(OmegaConf.create(settings))
+
     path = reward(method="vice_raq").save(tmp_path / "v.pt")
-    cfg = OmegaConf.create(
-        {"name": "gail_stages", "checkpoint": str(path), "stage_weight": 1.0, "classifier_weight": 1.0}
-    )
+    cfg = node(name="gail_stages", checkpoint=str(path), stage_weight=1.0, classifier_weight=1.0)
     with pytest.raises(RewardCheckpointError, match="learned by reward=vice_raq; use reward=vice_raq"):
         reward_setup(cfg, "reuse")
     with pytest.raises(ValueError, match="needs reward.checkpoint"):
-        reward_setup(OmegaConf.create({"name": "oril", "checkpoint": None}), "reuse")
-    assert (
-        reward_setup(OmegaConf.create({"name": "vice_raq", "checkpoint": str(path)}), "reuse").frozen.method
-        == "vice_raq"
-    )
+        reward_setup(node(name="oril", checkpoint=None), "reuse")
+    assert reward_setup(node(name="vice_raq", checkpoint=str(path)), "reuse").frozen.method == "vice_raq"
 
 
 def episode(n, *, success: bool, g=None):

@@ -72,7 +72,7 @@ def test_conf_dir_finds_the_configs_inside_an_installed_package(wheel, tmp_path)
     site = tmp_path / "site"
     zipfile.ZipFile(wheel).extractall(site)
     code = (
-        "import drs_torchrl, drs_torchrl.apps.cli as apps, drs_torchrl.rewards as rewards\n"
+        "import drs_torchrl, drs_torchrl.apps.cli as apps, drs_torchrl.apps.reward_registry as rewards\n"
         "from hydra import compose, initialize_config_dir\n"
         "print(drs_torchrl.__file__); print(apps.conf_dir()); print(len(rewards.available_rewards()))\n"
         "with initialize_config_dir(config_dir=apps.conf_dir(), version_base=None):\n"

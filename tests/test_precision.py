@@ -95,7 +95,7 @@ def test_bf16_learner_multiplies_in_bf16_and_keeps_fp32_weights_state_and_losses
     a = tr.cfg.algo
     updates = len(range(a.learning_starts, tr.cfg.total_frames + 1, a.frames_per_batch)) * a.frames_per_batch * a.utd
     assert summary["precision"] == "bf16" and summary["updates"] == updates == 224
-    assert summary["disc_updates"] == updates * tr.cfg.reward.disc.updates_per_sac_update == 224
+    assert summary["disc_updates"] == updates * tr.cfg.algo.reward_updates_per_update == 224
     assert seen["hidden"] == {torch.bfloat16}  # every critic matrix product ran in bf16 (none escaped autocast in vmap)
     params = dict(tr.updater.loss.named_parameters())
     assert params and all(p.dtype == torch.float32 for p in params.values())

@@ -163,6 +163,16 @@ def test_reuse_resumes_and_bad_resumes_leave_the_run_untouched(tmp_path, cli):
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["resumed_from"] == 512 and summary["frames"] >= 768
 
+    # a training state written before 0.1.0 (no algorithm recorded): refused in one line, the run left as it was
+    state = run_dir / "checkpoints" / "state" / "trainer.pt"
+    payload = torch.load(state, weights_only=True)
+    del payload["algo"]
+    torch.save(payload, state)
+    before = _digest(run_dir)
+    got, err = cli("reuse", f"resume={run_dir}", "total_frames=1024")
+    assert got == 2 and "training state predates drs-torchrl 0.1.0" in err and len(err.strip().splitlines()) == 1, err
+    assert _digest(run_dir) == before
+
 
 def test_resume_errors_are_clear(tmp_path):
     env = dict(os.environ, PYTHONWARNINGS="ignore")
@@ -172,15 +182,36 @@ def test_resume_errors_are_clear(tmp_path):
     assert p.returncode == 2 and "not a drs-torchrl run directory" in p.stderr
 
 
-def test_a_config_saved_before_algo_updater_existed_resumes_with_sac(tmp_path):
-    from drs_torchrl.apps.cli import resume_config
+def test_a_config_written_before_0_1_0_is_refused_in_one_line(tmp_path):
+    """A config.yaml without algo.updater (the code before 0.1.0, never released) is not guessed at: refused."""
+    from drs_torchrl.apps.cli import ResumeError, resume_config
 
     OmegaConf.save(
         OmegaConf.create({"phase": "learn", "algo": {"name": "sac_cpu", "gamma": 0.8}}), tmp_path / "config.yaml"
     )
+    with pytest.raises(ResumeError, match=r"predates drs-torchrl 0.1.0 \(no algo.updater\); start a new run"):
+        resume_config(tmp_path, "learn", [])
+
+
+def test_a_config_saved_by_0_1_0_resumes_with_its_settings_under_their_new_names(tmp_path):
+    """0.1.0 saved the discriminator steps per RL update as reward.disc.updates_per_sac_update: a resume reads its
+    value as algo.reward_updates_per_update (where the learner takes it from now), and an override of the old name
+    is refused naming the new one."""
+    from drs_torchrl.apps.cli import ResumeError, resume_config
+
+    saved = {
+        "phase": "learn",
+        "algo": {"name": "sac_cpu", "reward_updates_per_update": 1, "updater": {"_target_": "x"}},
+        "reward": {"name": "drs", "disc": {"updates_per_sac_update": 2, "lr": 3e-4}},
+    }
+    OmegaConf.save(OmegaConf.create(saved), tmp_path / "config.yaml")
     cfg = resume_config(tmp_path, "learn", [])
-    assert cfg.algo.updater._target_ == "drs_torchrl.updaters.sac.make_sac_updater"
-    assert OmegaConf.to_container(cfg.algo.updater)["gamma"] == "${algo.gamma}" and cfg.algo.updater.gamma == 0.8
+    assert cfg.algo.reward_updates_per_update == 2 and "updates_per_sac_update" not in cfg.reward.disc
+    assert (
+        resume_config(tmp_path, "learn", ["algo.reward_updates_per_update=0.5"]).algo.reward_updates_per_update == 0.5
+    )
+    with pytest.raises(ResumeError, match="updates_per_sac_update is now algo.reward_updates_per_update"):
+        resume_config(tmp_path, "learn", ["reward.disc.updates_per_sac_update=3"])
 
 
 def test_resume_config_applies_value_overrides_and_new_variant_parameters(tmp_path):

@@ -13,14 +13,8 @@ from omegaconf import OmegaConf
 
 from drs_torchrl.config_dir import conf_dir
 from drs_torchrl.learners.base import plain_step
-from drs_torchrl.rewards import (
-    available_rewards,
-    is_learned,
-    new_reward_learner,
-    reused_method,
-    reward_entry,
-    reward_setup,
-)
+from drs_torchrl.apps.reward_registry import available_rewards, registry_entry, with_builders
+from drs_torchrl.rewards import is_learned, new_reward_learner, reused_method, reward_entry, reward_setup
 from drs_torchrl.tasks import family_from_config
 from drs_torchrl.apps.factories import make_envs
 
@@ -32,24 +26,38 @@ def test_every_reward_file_names_its_builders():
     assert names == sorted(p.stem for p in (ROOT / "conf" / "reward").glob("*.yaml"))
     assert {"drs", "sparse", "semi_sparse", "dense", "vice_raq", "oril", "gail", "gail_stages"} <= set(names)
     for name in names:
-        entry = reward_entry(OmegaConf.create({"name": name}))
+        entry = registry_entry(name)
         assert callable(get_method(entry.slot._target_)), name
         if entry.get("learner") is not None:
             assert callable(get_method(entry.learner._target_)), name
-    learned = {n for n in names if is_learned(OmegaConf.create({"name": n}))}
+    learned = {n for n in names if is_learned(registry_entry(n))}
     assert learned == {"drs", "vice_raq", "oril", "gail", "gail_stages"}
-    assert reused_method(OmegaConf.create({"name": "gail_stages"})) == "gail"
+    assert reused_method(registry_entry("gail_stages")) == "gail"
 
 
 def test_an_unknown_reward_names_the_registry():
     with pytest.raises(ValueError, match=r"unknown reward 'nonsense'.*'drs'.*conf/reward"):
-        reward_entry(OmegaConf.create({"name": "nonsense"}))
+        registry_entry("nonsense")
+
+
+def test_the_library_builds_from_the_node_it_is_given_and_a_saved_one_gets_its_builders_from_the_registry():
+    """No module below the apps reads conf/: a reward node without builders (a config saved before the registry
+    named them) is refused by the library, and the apps fill it in from conf/reward/ (resume, drs-eval)."""
+    old = OmegaConf.create({"name": "gail_stages", "checkpoint": None, "stage_weight": 1.0})
+    with pytest.raises(ValueError, match="names no builder"):
+        reward_entry(old)
+    filled = with_builders(old)
+    assert filled is old and filled.slot == registry_entry("gail_stages").slot and reused_method(filled) == "gail"
+    assert filled.stage_weight == 1.0 and filled.get("classifier_weight") is None  # its own settings are untouched
+    node = registry_entry("drs")
+    node.slot = {"_target_": "mine.slot"}
+    assert with_builders(node).slot._target_ == "mine.slot"  # a node naming its builder keeps it
 
 
 @pytest.mark.parametrize("name", ["sparse", "semi_sparse", "dense"])
 def test_a_static_reward_refuses_a_checkpoint_it_would_ignore(name):
     """drs-reuse reward=dense reward.checkpoint=...: the user meant to reuse a learned reward and would get dense."""
-    cfg = reward_entry(OmegaConf.create({"name": name}))
+    cfg = registry_entry(name)
     reward_setup(cfg, "reuse")  # without one: fine
     cfg.checkpoint = "runs/learn/x/checkpoints/reward.pt"
     with pytest.raises(ValueError, match=f"reward={name} is a static reward and reads no checkpoint"):

@@ -51,7 +51,7 @@ def test_every_shipped_config_passes_its_schema(config, overrides):
         ("algo.gamma=0", "algo.gamma must be in (0, 1], got 0"),
         ("eval.episode_seed=-1", "eval.episode_seed must be null or >= 0, got -1"),
         ("stop_at_success=1.5", "stop_at_success must be null or a success rate in [0, 1], got 1.5"),
-        ("reward.disc.updates_per_sac_update=0", "updates_per_sac_update must be > 0, got 0 (fractions allowed"),
+        ("algo.reward_updates_per_update=0", "reward_updates_per_update must be > 0, got 0 (fractions allowed"),
         ("demos.num=-1", "demos.num must be null or > 0, got -1 (null: all in the file)"),
         ("algo.buffer_size=16", "algo.buffer_size (16) is smaller than algo.batch_size (256)"),  # cross-field
         # a switch is true or false: bool("no") is True, so "no" would have turned it on

@@ -5,8 +5,8 @@ transform writes the semi-sparse reward, (c) a transform in the env (static rewa
 per step) and/or (d) a transform on replay-buffer samples (rewards that change while training, so
 they are recomputed from the current modules when SAC samples; Sec. 4, Algorithm 1 line 18).
 
-**The registry is ``conf/reward/``**: a reward exists when ``conf/reward/<name>.yaml`` does, and that file names
-what builds it by ``_target_``: ``slot`` (one of the functions below: what the run's reward slot holds in either
+**The registry is ``conf/reward/``** (read by :mod:`drs_torchrl.apps.reward_registry`, not here): a reward exists
+when ``conf/reward/<name>.yaml`` does, and that file names what builds it by ``_target_``: ``slot`` (one of the functions below: what the run's reward slot holds in either
 phase) and, for a learned reward, ``learner`` (its phase-1 :mod:`drs_torchrl.learners` learner, built by a
 ``*_learner`` function below) and ``reuses`` (the method of the ``reward.pt`` its phase 2 loads, when it is not its
 own name). No module lists reward names. Adding a learned reward: a learner class, its builder and one YAML.
@@ -21,33 +21,25 @@ Gymnasium family such as HalfCheetah, Appendix G, the env's own reward, unshifte
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from torchrl.envs.transforms import Transform
 
-from drs_torchrl.config_dir import conf_dir
 from drs_torchrl.tasks import TaskFamily
 from drs_torchrl.transforms.classifier_reward import ClassifierReward
 from drs_torchrl.transforms.reward import DrSReward, RewardCheckpointError, load_reward
 
 
-def available_rewards() -> list[str]:
-    """Every reward of the registry (the files of ``conf/reward/``)."""
-    return sorted(p.stem for p in (Path(conf_dir()) / "reward").glob("*.yaml"))
-
-
 def reward_entry(cfg) -> DictConfig:
-    """The registry entry of the reward ``cfg`` (a ``reward`` config group, or just ``{name: ...}``): the group
-    itself where it carries ``slot`` (a composed config), else ``conf/reward/<name>.yaml`` (a config saved before
-    the registry, or the maze's inline reward)."""
-    if cfg.get("slot") is not None:
-        return cfg
-    path = Path(conf_dir()) / "reward" / f"{cfg.name}.yaml"
-    if not path.is_file():
-        raise ValueError(f"unknown reward {cfg.name!r}; choose one of {available_rewards()} (conf/reward/)")
-    return OmegaConf.load(path)
+    """What builds the reward ``cfg`` (a ``reward`` config node as composed from ``conf/reward/<name>.yaml``): the
+    node itself, which names its ``slot`` (and ``learner``, ``reuses``)."""
+    if cfg.get("slot") is None:
+        raise ValueError(
+            f"the reward config {cfg.get('name')!r} names no builder (slot): compose it from conf/reward/ "
+            "(drs_torchrl.apps.reward_registry.with_builders fills in a saved or partial one)"
+        )
+    return cfg
 
 
 def is_learned(cfg) -> bool:
@@ -232,19 +224,48 @@ def new_classifier_reward(cfg, family: TaskFamily, observation_spec, action_spec
     )
 
 
-def new_reward_learner(cfg, family: TaskFamily, env, metadata: dict, *, device, autocast, step_fn, demos=None):
-    """The phase-1 learner of ``reward=<name>`` (``cfg`` is the ``reward`` config group): its entry's ``learner``."""
+def new_reward_learner(
+    cfg,
+    family: TaskFamily,
+    env,
+    metadata: dict,
+    *,
+    device,
+    autocast,
+    step_fn,
+    demos=None,
+    updates_per_rl_update: float = 1.0,
+):
+    """The phase-1 learner of ``reward=<name>`` (``cfg`` is the ``reward`` config group): its entry's ``learner``.
+    ``updates_per_rl_update``: its steps per RL update, the algorithm's ``algo.reward_updates_per_update``."""
     return instantiate(reward_entry(cfg).learner)(
-        cfg, family, env, metadata, device=device, autocast=autocast, step_fn=step_fn, demos=demos
+        cfg,
+        family,
+        env,
+        metadata,
+        device=device,
+        autocast=autocast,
+        step_fn=step_fn,
+        demos=demos,
+        updates_per_rl_update=updates_per_rl_update,
     )
 
 
-def _common(cfg, device, autocast, step_fn) -> dict:
+def _common(cfg, device, autocast, step_fn, updates_per_rl_update) -> dict:
     d = cfg.disc
-    return dict(lr=float(d.lr), fused=bool(d.get("fused", False)), device=device, autocast=autocast, step_fn=step_fn)
+    return dict(
+        lr=float(d.lr),
+        fused=bool(d.get("fused", False)),
+        device=device,
+        autocast=autocast,
+        step_fn=step_fn,
+        updates_per_rl_update=float(updates_per_rl_update),
+    )
 
 
-def drs_learner(cfg, family: TaskFamily, env, metadata: dict, *, device, autocast, step_fn, demos=None):
+def drs_learner(
+    cfg, family: TaskFamily, env, metadata: dict, *, device, autocast, step_fn, demos=None, updates_per_rl_update=1.0
+):
     """DrS (Algorithm 1): stage buffers and one discriminator per stage, training a fresh :class:`DrSReward`."""
     from drs_torchrl.learners import DrSLearner
 
@@ -254,35 +275,38 @@ def drs_learner(cfg, family: TaskFamily, env, metadata: dict, *, device, autocas
         capacity=int(cfg.stage_buffer_size),
         batch_size=int(d.batch_size),
         scratch_dir=cfg.get("stage_buffer_scratch_dir"),
-        updates_per_rl_update=float(d.updates_per_sac_update),
         early_stop_threshold=d.early_stop_threshold,
         window=int(d.window),
         latch=bool(d.get("latch", True)),
         demos=demos,
-        **_common(cfg, device, autocast, step_fn),
+        **_common(cfg, device, autocast, step_fn, updates_per_rl_update),
     )
 
 
-def _classifier(cfg, family, env, metadata, device, autocast, step_fn) -> tuple[ClassifierReward, dict]:
+def _classifier(cfg, family, env, metadata, device, autocast, step_fn, rate) -> tuple[ClassifierReward, dict]:
     reward = new_classifier_reward(cfg, family, env.observation_spec, env.action_spec, metadata).to(device)
-    common = _common(cfg, device, autocast, step_fn)
-    common.update(batch_size=int(cfg.disc.batch_size), updates_per_rl_update=float(cfg.disc.updates_per_sac_update))
+    common = _common(cfg, device, autocast, step_fn, rate)
+    common.update(batch_size=int(cfg.disc.batch_size))
     return reward, common
 
 
-def vice_raq_learner(cfg, family: TaskFamily, env, metadata: dict, *, device, autocast, step_fn, demos=None):
+def vice_raq_learner(
+    cfg, family: TaskFamily, env, metadata: dict, *, device, autocast, step_fn, demos=None, updates_per_rl_update=1.0
+):
     """VICE-RAQ with an oracle (Sec. 5.2): success states vs every other visited state, online."""
     from drs_torchrl.learners import SuccessClassifierLearner
 
-    reward, common = _classifier(cfg, family, env, metadata, device, autocast, step_fn)
+    reward, common = _classifier(cfg, family, env, metadata, device, autocast, step_fn, updates_per_rl_update)
     return SuccessClassifierLearner(reward, success_key=family.stage_keys[-1], capacity=int(cfg.buffer_size), **common)
 
 
-def oril_learner(cfg, family: TaskFamily, env, metadata: dict, *, device, autocast, step_fn, demos=None):
+def oril_learner(
+    cfg, family: TaskFamily, env, metadata: dict, *, device, autocast, step_fn, demos=None, updates_per_rl_update=1.0
+):
     """ORIL (Sec. 5.2): demonstration states vs random-policy states, trained offline before RL."""
     from drs_torchrl.learners import OfflineClassifierLearner
 
-    reward, common = _classifier(cfg, family, env, metadata, device, autocast, step_fn)
+    reward, common = _classifier(cfg, family, env, metadata, device, autocast, step_fn, updates_per_rl_update)
     return OfflineClassifierLearner(
         reward,
         demos=demos,
@@ -293,9 +317,11 @@ def oril_learner(cfg, family: TaskFamily, env, metadata: dict, *, device, autoca
     )
 
 
-def gail_learner(cfg, family: TaskFamily, env, metadata: dict, *, device, autocast, step_fn, demos=None):
+def gail_learner(
+    cfg, family: TaskFamily, env, metadata: dict, *, device, autocast, step_fn, demos=None, updates_per_rl_update=1.0
+):
     """GAIL (Appendix F.2): demonstrations vs the agent's transitions, TorchRL's ``GAILLoss``."""
     from drs_torchrl.learners import DemoDiscriminatorLearner
 
-    reward, common = _classifier(cfg, family, env, metadata, device, autocast, step_fn)
+    reward, common = _classifier(cfg, family, env, metadata, device, autocast, step_fn, updates_per_rl_update)
     return DemoDiscriminatorLearner(reward, demos=demos, grad_penalty=bool(cfg.get("grad_penalty", False)), **common)

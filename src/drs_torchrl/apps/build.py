@@ -349,7 +349,12 @@ class Run:
 
     def load_training_state(self) -> None:
         payload, state_dir = self.checkpointer.read_state(self.phase)
-        algo = payload.get("algo", "sac")  # states written before algo.updater existed are SAC's
+        if "algo" not in payload or "learner" not in payload:  # written by the code before 0.1.0, never released
+            raise TrainingStateError(
+                f"{self.run_dir}'s training state predates drs-torchrl 0.1.0 (no algorithm or reward learner recorded) "
+                "and cannot be resumed: start a new run (its checkpoints/reward.pt and policy.pt still load)"
+            )
+        algo = payload["algo"]
         if algo != self.updater.name:
             raise TrainingStateError(
                 f"{self.run_dir}'s training state is {algo}'s, this run's algo trains {self.updater.name}"
@@ -361,17 +366,7 @@ class Run:
         known = ("format", "version", "phase", "algo", "counters", "learner", "recent_episodes", "rng")
         state = {k: v for k, v in payload.items() if k not in known}
         self.updater.load_state_dict({**state, "updates": c["updates"], "owed_updates": c["owed_updates"]})
-        learner_state = payload.get("learner")
-        if self.learner is not None and learner_state is None:
-            # written before the reward learners existed: a DrS run's parts at the top level
-            learner_state = {
-                "reward": payload["reward"],
-                "disc_loss": payload["disc_loss"],
-                "updates": int(c["disc_updates"]),
-                "optimizers": {"discriminator": payload["optimizers"]["discriminator"]},
-                "stage_buffer_episodes": payload["stage_buffer_episodes"],
-            }
-        self.checkpointer.restore_buffers(state_dir, learner_state)
+        self.checkpointer.restore_buffers(state_dir, payload["learner"])
         self.episodes.recent.extend(tuple(e) for e in payload["recent_episodes"])
         set_rng_state(payload["rng"])
 

@@ -31,6 +31,8 @@ from drs_torchrl.apps.hydra_record import (  # noqa: F401 (registers the configs
     holds_run,
     replaced,
 )
+from drs_torchrl.apps.reward_registry import with_builders
+from drs_torchrl.config_dir import RENAMED_SETTINGS, renamed_hint
 from drs_torchrl.config_dir import conf_dir  # noqa: F401 (the CLI's config path; re-exported)
 from drs_torchrl.runtime.console import UserError, console_script, user_error_message
 from drs_torchrl.runtime.errors import ConfigError
@@ -89,6 +91,7 @@ def resume_config(run_dir: Path, phase: str, overrides: list[str], composed: Dic
         raise ResumeError(f"cannot resume: {maze}; a maze run is not resumed, it is run again (minutes)")
     if saved.get("phase") != phase:
         raise ResumeError(f"{run_dir} is a drs-{saved.get('phase')} run; resume it with drs-{saved.get('phase')}")
+    rename_settings(saved)
     for o in overrides:
         key, _, value = o.partition("=")
         adding = key.startswith("+") and not key.startswith("++")
@@ -105,7 +108,7 @@ def resume_config(run_dir: Path, phase: str, overrides: list[str], composed: Dic
             if not (
                 newer or (adding and parent and isinstance(OmegaConf.select(saved, parent, default=None), DictConfig))
             ):
-                raise ResumeError(f"override {key!r} does not exist in the config of {run_dir}")
+                raise ResumeError(f"override {key!r} does not exist in the config of {run_dir}{renamed_hint(key)}")
         parsed = OmegaConf.select(composed, key) if composed is not None else yaml.safe_load(value)
         was = OmegaConf.select(saved, key, default=None)
         was = OmegaConf.to_container(was) if OmegaConf.is_config(was) else was
@@ -122,10 +125,27 @@ def resume_config(run_dir: Path, phase: str, overrides: list[str], composed: Dic
             )
         OmegaConf.update(saved, key, parsed, merge=True)
     saved.resume = str(run_dir)
-    if "algo" in saved and saved.algo.get("updater") is None:  # saved before algo.updater existed: SAC, as it was
-        with open_dict(saved):
-            saved.algo.updater = OmegaConf.load(Path(conf_dir()) / "algo" / "sac_cpu.yaml").updater
+    if "reward" in saved:
+        with_builders(saved.reward)  # saved before the reward registry named its builders
+    if "algo" in saved and saved.algo.get("updater") is None:  # written by the code before 0.1.0, never released
+        raise ResumeError(
+            f"cannot resume: {run_dir}/config.yaml predates drs-torchrl 0.1.0 (no algo.updater); start a new run "
+            "(its checkpoints/reward.pt and policy.pt still load)"
+        )
     return saved
+
+
+def rename_settings(saved: DictConfig) -> None:
+    """A saved config's settings under their current names (:data:`~drs_torchrl.config_dir.RENAMED_SETTINGS`): a run
+    saved by 0.1.0 resumes with its value under the new key. In place."""
+    for old, new in RENAMED_SETTINGS.items():
+        value = OmegaConf.select(saved, old, default="__missing__")
+        if value == "__missing__":
+            continue
+        parent, _, leaf = old.rpartition(".")
+        with open_dict(saved):
+            OmegaConf.update(saved, new, value, merge=False, force_add=True)
+            del OmegaConf.select(saved, parent)[leaf]
 
 
 def _other_reward(was, now) -> bool:

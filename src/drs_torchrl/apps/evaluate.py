@@ -27,6 +27,7 @@ import torch
 
 from drs_torchrl.runtime.checkpoint import atomic_write_text
 from drs_torchrl.runtime.console import UserError, at_least, console_script
+from drs_torchrl.apps.reward_registry import with_builders
 from drs_torchrl.runtime.rundir import check_writable, load_run_config, lock_run_dir, unlock_run_dir
 
 
@@ -97,6 +98,7 @@ def evaluate_run(
     if episode_seed is not None and episode_seed < 0:
         raise EvalError(f"--episode-seed must be >= 0, got {episode_seed}")
     cfg = load_run_config(run_dir)
+    with_builders(cfg.reward)  # a config saved before the reward registry named its builders
     family = family_from_config(cfg.env)
     split = split or cfg.env.split
     family.split_variants(split)  # unknown names raise the KeyError listing the variants

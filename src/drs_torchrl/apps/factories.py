@@ -83,7 +83,8 @@ def make_reward_learner(
     cfg: DictConfig, family: TaskFamily, env, device: torch.device, precision: str, step_fn, demos: list | None = None
 ):
     """The phase-1 reward learner of ``reward=<name>`` (:mod:`drs_torchrl.learners`), its checkpoint
-    metadata describing the training split. ``step_fn(loss, optimizers)``: backward and steps."""
+    metadata describing the training split, stepping ``algo.reward_updates_per_update`` times per RL update.
+    ``step_fn(loss, optimizers)``: backward and steps."""
     split_args = family.env_args(
         cfg.env.split, OmegaConf.to_container(cfg.env.variant_overrides) if cfg.env.variant_overrides else None
     )
@@ -104,6 +105,7 @@ def make_reward_learner(
         autocast=functools.partial(autocast, precision, device),
         step_fn=step_fn,
         demos=demos,
+        updates_per_rl_update=float(cfg.algo.get("reward_updates_per_update") or 1),
     )
 
 

@@ -95,7 +95,8 @@ from drs_torchrl.config_dir import conf_dir
 from drs_torchrl.runtime.console import console_script
 from drs_torchrl.runtime.run_logger import RunLogger
 from drs_torchrl.loop import EpisodeWindow, Progress, Schedule, run_algorithm1
-from drs_torchrl.rewards import available_rewards, reused_method, reward_entry, static_checkpoint_error
+from drs_torchrl.apps.reward_registry import available_rewards, registry_entry
+from drs_torchrl.rewards import static_checkpoint_error
 from drs_torchrl.runtime.rundir import OldRun, RunDirBusyError, clear_for_new_run, lock_run_dir, unlock_run_dir
 from drs_torchrl.transforms import ClassifierReward, DrSReward, SemiSparseReward, StageIndicator, load_reward
 
@@ -264,7 +265,7 @@ def _convertible(src: str, dst: str) -> bool:
 
 def _entry(cfg: DictConfig):
     """The reward's registry entry (``conf/reward/<name>.yaml``), or None for a name it does not hold."""
-    return reward_entry(cfg.reward) if cfg.reward.name in available_rewards() else None
+    return registry_entry(cfg.reward.name) if cfg.reward.name in available_rewards() else None
 
 
 def _is_classifier(entry) -> bool:
@@ -278,7 +279,7 @@ def validate(cfg: DictConfig) -> None:
     check_constructor_arguments(cfg, MazeConfigError)
     entry, name = _entry(cfg), cfg.reward.name
     learned = entry is not None and entry.get("learner") is not None
-    learnable = [n for n in available_rewards() if (e := reward_entry(OmegaConf.create({"name": n}))).get("learner")
+    learnable = [n for n in available_rewards() if (e := registry_entry(n)).get("learner")
                  and not e.get("reuses")]  # fmt: skip
     checks = [
         (cfg.phase in ("learn", "reuse", "report"), f"phase must be learn, reuse or report, got {cfg.phase!r}"),
@@ -424,7 +425,7 @@ def make_reward(cfg: DictConfig, map_name: str, learn: bool) -> tuple[DrSLearner
         capacity=r.stage_buffer_size,
         batch_size=r.disc.batch_size,
         lr=r.disc.lr,
-        updates_per_rl_update=r.disc.updates_per_dqn_update,
+        updates_per_rl_update=cfg[cfg.agent].reward_updates_per_update,
         early_stop_threshold=r.disc.early_stop_threshold,
         window=r.disc.window,
         demos=demos,
@@ -438,10 +439,10 @@ def make_classifier_reward(cfg: DictConfig, map_name: str, learn: bool):
     :mod:`drs_torchrl.learners` (phase 1), or the frozen classifier (phase 2; ``gail_stages`` adds
     the stage term ``w_s * (k - 1)`` to a GAIL checkpoint, Appendix F.2)."""
     r, c = cfg.reward, cfg.reward.classifier
-    entry = reward_entry(r)
+    entry = registry_entry(r.name)
     if not learn:
         rew = load_reward(r.checkpoint)
-        want = reused_method(r)
+        want = str(entry.get("reuses") or r.name)
         if not isinstance(rew, ClassifierReward) or rew.metadata.get("family") != FAMILY or rew.method != want:
             raise MazeConfigError(
                 f"{r.checkpoint} is not a maze {want} reward (family {rew.metadata.get('family')!r}, "
@@ -473,7 +474,9 @@ def make_classifier_reward(cfg: DictConfig, map_name: str, learn: bool):
         },
     )
     common = dict(
-        lr=float(c.lr), batch_size=int(c.batch_size), updates_per_rl_update=int(r.disc.updates_per_dqn_update)
+        lr=float(c.lr),
+        batch_size=int(c.batch_size),
+        updates_per_rl_update=int(cfg[cfg.agent].reward_updates_per_update),
     )
     s_eps = demo_episodes(map_name, int(cfg.demos), int(cfg.seed), cfg.coords)  # observations of s ...
     n_eps = demo_episodes(map_name, int(cfg.demos), int(cfg.seed), cfg.coords, next_state=True)  # ... and of s'

@@ -79,6 +79,7 @@ class AlgoSchema:
     epochs: int = setting(gt=0, example=4)
     gamma: float = setting(gt=0, le=1, example=0.8)
     tau: float = setting(gt=0, le=1, example=0.005)
+    reward_updates_per_update: float = setting(gt=0, example=0.5, hint="(fractions allowed, e.g. 0.5)")
     compile: Any = setting(example="update")  # false | true (= loss) | loss | update: updaters.sac.compile_scope
     hidden: List[int] = setting(gt=0, example="[256,256,256]", noun="layer widths, each")
     optim: OptimSchema = field(default_factory=OptimSchema)
@@ -88,7 +89,6 @@ class AlgoSchema:
 class DiscSchema:
     lr: float = setting(gt=0, example=0.0003)
     batch_size: int = setting(gt=0, example=256)
-    updates_per_sac_update: float = setting(gt=0, example=0.5, hint="(fractions allowed, e.g. 0.5)")
     window: int = setting(gt=0, example=100)
     early_stop_threshold: Optional[float] = setting(gt=0, le=1, example=0.95)
     latch: bool = setting(example=True)
@@ -148,6 +148,7 @@ class MazeDQNSchema:
     eps_end: float = setting(ge=0, le=1, example=0.05)
     eps_anneal_frac: float = setting(gt=0, le=1, example=0.5)
     hidden: List[int] = setting(gt=0, example="[64,64]", noun="layer widths, each")
+    reward_updates_per_update: float = setting(gt=0, example=1, hint="(fractions allowed, e.g. 0.5)")
 
 
 @dataclass
@@ -160,13 +161,13 @@ class MazePPOSchema:
     epochs: int = setting(gt=0, example=4)
     reward_scale: float = setting(gt=0, example=1.0)
     hidden: List[int] = setting(gt=0, example="[64,64]", noun="layer widths, each")
+    reward_updates_per_update: float = setting(gt=0, example=1, hint="(fractions allowed, e.g. 0.5)")
 
 
 @dataclass
 class MazeDiscSchema:
     lr: float = setting(gt=0, example=0.001)
     batch_size: int = setting(gt=0, example=256)
-    updates_per_dqn_update: float = setting(gt=0, example=1)
     window: int = setting(gt=0, example=100)
     early_stop_threshold: Optional[float] = setting(gt=0, le=1, example=0.95)
 

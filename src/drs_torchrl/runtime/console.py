@@ -38,6 +38,7 @@ import traceback
 import warnings
 
 
+from drs_torchrl.config_dir import renamed_hint
 from drs_torchrl.runtime.errors import UserError  # noqa: E402  (re-exported: the one base class of user errors)
 
 
@@ -110,6 +111,7 @@ def user_error_message(exc: BaseException) -> str | None:
             one_line(exc)
             + (f" ({one_line(cause)})" if cause is not None and type(cause).__module__.startswith("omegaconf") else "")
             + _quoting_hint(exc)
+            + renamed_hint(str(exc))
         )
     if isinstance(exc, OSError) and (exc.filename or exc.errno in (errno.ENOSPC, errno.EDQUOT)):
         msg = f"{exc.filename}: {exc.strerror or exc}" if exc.filename else str(exc.strerror or exc)

@@ -111,7 +111,8 @@ def bench_components(
     """Per-call times of the learner's parts on real PickCube data (phase 1, ``algo``):
 
     * ``sac_update_ms``: one SAC update (replay sample, reward recomputation, SACLoss, backward,
-      three Adam steps, target update), eager and, if it compiles, with ``algo.compile=true``;
+      three Adam steps, target update), eager and, if it compiles, with ``algo.compile=loss`` (``true``) and
+      ``algo.compile=update`` (fp32);
     * ``reward_recompute_ms``: the learned reward (all discriminators, one pass) on a SAC batch;
     * ``disc_update_ms``: one discriminator update (a batch per discriminator from the stage buffers);
     * ``stage_sample_ms`` per stage-buffer size: drawing one discriminator batch, and filing one
@@ -195,19 +196,21 @@ def bench_components(
             tr.close()
     if not compile_too:
         return out
-    cfg.algo.compile = True
-    with tempfile.TemporaryDirectory() as d:
-        try:
-            tr = Run(cfg, "learn", d)
-            tr.run()
-            tr = Run(cfg, "learn", d, resume=True)
-            t = time.perf_counter()
-            tr.updater.step()
-            out["compile_s"] = time.perf_counter() - t
-            out["sac_update_compiled_ms"] = per_call_ms(tr.updater.step)
-            tr.close()
-        except Exception as exc:  # reported, not hidden: the eager numbers stand
-            out["compile_error"] = f"{type(exc).__name__}: {exc}"[:500]
+    # algo.compile=loss (what true means; keys as before) and =update (the whole update compiled as one function)
+    for scope, suffix in (("loss", ""), ("update", "_whole")):
+        ccfg = OmegaConf.merge(cfg, {"algo": {"compile": scope, "precision": "fp32"}})
+        with tempfile.TemporaryDirectory() as d:
+            try:
+                tr = Run(ccfg, "learn", d)
+                tr.run()
+                tr = Run(ccfg, "learn", d, resume=True)
+                t = time.perf_counter()
+                tr.updater.step()
+                out[f"compile{suffix}_s"] = time.perf_counter() - t
+                out[f"sac_update_compiled{suffix}_ms"] = per_call_ms(tr.updater.step)
+                tr.close()
+            except Exception as exc:  # reported, not hidden: the eager numbers stand
+                out[f"compile{suffix}_error"] = f"{type(exc).__name__}: {exc}"[:500]
     return out
 
 
@@ -489,7 +492,7 @@ def algo_settings(algo: str) -> tuple[int, float, int, int]:
     return (
         int(cfg.algo.batch_size),
         float(cfg.algo.utd),
-        float(cfg.reward.disc.updates_per_sac_update),
+        float(cfg.algo.get("reward_updates_per_update") or 1),
         int(cfg.reward.disc.batch_size),
     )
 
@@ -736,12 +739,14 @@ def render_markdown(res: dict) -> str:
             + "".join(
                 f", {ms:.1f} ms {p}" for p, ms in (c.get("sac_update_ms_by_precision") or {}).items() if p != "fp32"
             )
-            + (
-                f", {c['sac_update_compiled_ms']:.1f} ms with `algo.compile=true` (compiled in {c['compile_s']:.0f} s)"
-                if "sac_update_compiled_ms" in c
-                else f" (compile failed: {c['compile_error']})"
-                if "compile_error" in c
+            + "".join(
+                f", {c[f'sac_update_compiled{x}_ms']:.1f} ms with `algo.compile={scope}` (compiled in "
+                f"{c[f'compile{x}_s']:.0f} s)"
+                if f"sac_update_compiled{x}_ms" in c
+                else f" (`algo.compile={scope}` failed: {c[f'compile{x}_error']})"
+                if f"compile{x}_error" in c
                 else ""
+                for scope, x in (("loss", ""), ("update", "_whole"))
             ),
             f"- reward recomputation on one SAC batch (all discriminators, one pass): {c['reward_recompute_ms']:.2f} ms",
             f"- discriminator update (one batch per stage): {c['disc_update_ms']:.2f} ms",
