@@ -39,6 +39,7 @@ from drs_torchrl.apps.maze import (
     make_env,
     report,
     reward_diagnostics,
+    reward_transform,
     reward_label,
     train,
     validate,
@@ -423,7 +424,7 @@ def test_relative_reward_view_is_decoded_from_the_agents_observation():
     obs = observation(grid, cells, goals, "onehot")
     act = torch.nn.functional.one_hot(torch.tensor([UP, DOWN, LEFT, STAY]), 5).float()
     td = TensorDict({"observation": obs, "action": act, "next": {"stage": torch.zeros(4, 1, dtype=torch.long)}}, [4])
-    got = StateActionReward(drs, "onehot")(td)["next", "reward"]
+    got = reward_transform(drs, "onehot")(td)["next", "reward"]
     want = drs.reward(
         TensorDict(
             {
@@ -465,7 +466,7 @@ def test_a_patch_only_reward_learns_and_is_reused(tmp_path):
         },
         [2],
     )
-    r = StateActionReward(reward, "onehot")(td)["next", "reward"]
+    r = reward_transform(reward, "onehot")(td)["next", "reward"]
     assert torch.equal(r[0], r[1])
 
 

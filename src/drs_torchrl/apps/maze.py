@@ -44,6 +44,7 @@ diagnostics and report live in :mod:`drs_torchrl.tools.maze_analysis`.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import sys
@@ -60,7 +61,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, ReplayBuffer
 from torchrl.envs import TransformedEnv
-from torchrl.envs.transforms import MultiStepTransform, RewardScaling, Transform
+from torchrl.envs.transforms import MultiStepTransform, RewardScaling
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from drs_torchrl.runtime.provenance import code_version
@@ -98,56 +99,29 @@ from drs_torchrl.loop import EpisodeWindow, Progress, Schedule, run_algorithm1
 from drs_torchrl.apps.reward_registry import available_rewards, registry_entry
 from drs_torchrl.rewards import static_checkpoint_error
 from drs_torchrl.runtime.rundir import OldRun, RunDirBusyError, clear_for_new_run, lock_run_dir, unlock_run_dir
-from drs_torchrl.transforms import ClassifierReward, DrSReward, SemiSparseReward, StageIndicator, load_reward
+from drs_torchrl.transforms import (
+    ClassifierReward,
+    DrSReward,
+    SemiSparseReward,
+    StageIndicator,
+    StateActionReward,
+    load_reward,
+)
 
 REWARD_INPUTS = ("state_action", "next_state")  # R(s, a) as the appendix's tabular analysis, or R(s') as Sec. 4.3
 FAMILY = "three_room_maze"
 
 
 # ----------------------------------------------------------------------------- reward on (s, a)
-class StateActionReward(Transform):
-    """Write the DrS reward ``R(s, a)`` of transitions into ``("next", "reward")``.
-
-    ``reward`` is a :class:`DrSReward` whose ``reward_in_keys`` (e.g. ``observation`` and
-    ``action``) are read at the root of a transition, so they describe ``(s, a)``. The stage index
-    is read from ``("next", stage)``, the stage of ``s'``. As a replay-buffer transform
-    (``forward``) it recomputes rewards from the current discriminator each time the agent samples
-    (Algorithm 1, line 18). Inside a :class:`~torchrl.envs.TransformedEnv` (``_step``, placed after
-    the :class:`StageIndicator`) it writes the reward of each step as it is taken.
-    ``obs_coords``: the coordinate encoding of the env's observations; when the reward was learned on
-    another one (e.g. ``relative``), observations are re-encoded before the reward reads them.
-    ``scale`` multiplies the reward the agent sees (``dqn.reward_scale``); the discriminator is
-    untouched. A reward learned with ``reward.input=next_state`` (metadata ``reward_on``) reads its
-    inputs from ``"next"`` instead: ``R(s')`` as in Sec. 4.3.
-    """
-
-    def __init__(self, reward: DrSReward, obs_coords: str | None = None, scale: float = 1.0):
-        super().__init__()  # it only rewrites the reward entry, whose spec the env already has
-        self.drs = reward
-        self.obs_coords = obs_coords
-        self.reward_coords = reward_coords(reward)
-        self.scale = float(scale)
-        self.on_next_state = reads_next_state(reward)
-
-    def _reward(self, root: TensorDictBase, nxt: TensorDictBase) -> torch.Tensor:
-        if isinstance(self.drs, ClassifierReward):  # a baseline's classifier reads (s, a) or s' itself
-            r = self.drs.reward_of(root, nxt, root.get(self.drs.action_key, None))
-            return r * self.scale if self.scale != 1.0 else r
-        src = nxt if self.on_next_state else root
-        sa = TensorDict({k: src.get(k) for k in self.drs.reward_in_keys}, batch_size=root.batch_size)
-        if self.obs_coords is not None and self.obs_coords != self.reward_coords:
-            sa.set("observation", convert_observation(sa.get("observation"), self.obs_coords, self.reward_coords))
-        sa.set(self.drs.stage_key, nxt.get(self.drs.stage_key))
-        r = self.drs.reward(sa)
-        return r * self.scale if self.scale != 1.0 else r
-
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        tensordict.set(("next", self.drs.reward_key), self._reward(tensordict, tensordict.get("next")))
-        return tensordict
-
-    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
-        next_tensordict.set(self.drs.reward_key, self._reward(tensordict, next_tensordict))
-        return next_tensordict
+def reward_transform(reward, obs_coords: str | None = None, scale: float = 1.0) -> StateActionReward:
+    """The maze's reward on transitions (:class:`~drs_torchrl.transforms.StateActionReward`), the env's observations
+    (coordinate encoding ``obs_coords``) re-encoded to those the reward was learned on (e.g. ``relative``)."""
+    to = None
+    if obs_coords is not None and not isinstance(reward, ClassifierReward):
+        learned_on = reward_coords(reward)
+        if learned_on != obs_coords:
+            to = functools.partial(convert_observation, src=obs_coords, dst=learned_on)
+    return StateActionReward(reward, scale=scale, observation_map=to)
 
 
 def sa_trajectory(
@@ -203,7 +177,7 @@ def make_env(
     if reward_name == "semi_sparse":  # scaled here: TorchRL's RewardScaling refuses its bounded reward spec
         env.append_transform(SemiSparseReward(1, offset=-1.0, scale=reward_scale))
     if drs is not None:
-        env.append_transform(StateActionReward(drs, coords))
+        env.append_transform(reward_transform(drs, coords))
     if reward_scale != 1.0 and reward_name != "semi_sparse":
         env.append_transform(RewardScaling(loc=0.0, scale=float(reward_scale)))
     return env
@@ -530,7 +504,7 @@ def make_replay_buffer(cfg: DictConfig, drs: DrSReward | None) -> ReplayBuffer:
     return ReplayBuffer(
         storage=LazyTensorStorage(int(d.buffer_size)),
         batch_size=int(d.batch_size),
-        transform=StateActionReward(drs, cfg.coords, scale) if drs is not None else None,
+        transform=reward_transform(drs, cfg.coords, scale) if drs is not None else None,
     )
 
 
@@ -546,7 +520,7 @@ def make_updater(cfg: DictConfig, env, drs, learn: bool):
         # phase 1: the batch's reward from the discriminator of the moment (the env's is the collection-time one)
         scale = float(cfg.ppo.get("reward_scale", 1.0))
         return instantiate(cfg.ppo.updater)(
-            env, reward=StateActionReward(drs, cfg.coords, scale) if (learn and drs) else None
+            env, reward=reward_transform(drs, cfg.coords, scale) if (learn and drs) else None
         )
     # conf/maze.yaml's dqn.updater; the app adds the replay buffer (single steps or n-step windows) and the annealing
     # length (a fraction of the run)
