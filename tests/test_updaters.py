@@ -207,6 +207,7 @@ def test_a_sac_step_trains_actor_critics_and_alpha_and_moves_the_targets_by_tau(
     assert rewards.reshape(-1).unique().numel() > 16  # drawn across the buffer, not one transition repeated
 
 
+@pytest.mark.sim  # not a simulator: torch.compile's minute of tracing, kept out of the fast tier
 @pytest.mark.slow
 def test_sac_compiled_whole_compiles_once_and_learns_as_eager_does(monkeypatch):
     """``algo.compile=update`` (issue 64): loss, backward, Adam steps and target update as one compiled function,
