@@ -201,7 +201,11 @@ def test_a_config_saved_by_0_1_0_resumes_with_its_settings_under_their_new_names
 
     saved = {
         "phase": "learn",
-        "algo": {"name": "sac_cpu", "reward_updates_per_update": 1, "updater": {"_target_": "x"}},
+        "algo": {
+            "name": "sac_cpu",
+            "reward_updates_per_update": 1,
+            "updater": {"_target_": "drs_torchrl.updaters.sac.make_sac_updater"},
+        },
         "reward": {"name": "drs", "disc": {"updates_per_sac_update": 2, "lr": 3e-4}},
     }
     OmegaConf.save(OmegaConf.create(saved), tmp_path / "config.yaml")

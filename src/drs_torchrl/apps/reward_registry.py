@@ -32,7 +32,7 @@ def with_builders(reward: DictConfig) -> DictConfig:
     """``reward`` (a ``reward`` config node) with its registry entry's builder keys where it lacks them: a config
     saved before the registry named builders, or the maze's inline ``reward`` (its name only). Changed in place and
     returned; a node that names its ``slot`` is returned as it is."""
-    if reward.get("slot") is not None:
+    if reward.get("slot") is not None or reward.get("name") is None:  # (nothing to look up without a name)
         return reward
     entry = registry_entry(str(reward.name))
     with open_dict(reward):
