@@ -85,6 +85,14 @@ if ! "$PYTHON" -c "import ensurepip" 2>/dev/null; then  # Debian ships venv's pi
     exit 1
   fi
 fi
+if ! command -v g++ >/dev/null && ! command -v c++ >/dev/null; then  # torch.compile's CPU backend builds C++
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+    log "installing g++ (algo.compile on a CPU, and its test, compile C++)"
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq g++ >/dev/null
+  else
+    log "no C++ compiler: algo.compile on a CPU (and its test) needs one (as root: apt-get install g++)"
+  fi
+fi
 if [ -x .venv/bin/python ] && ! .venv/bin/python -m pip --version >/dev/null 2>&1; then
   log ".venv has no pip (an earlier venv creation failed half-way): making it again"
   rm -rf .venv
