@@ -145,7 +145,7 @@ class Run:
             self.resolved.update(use.resolved)
             for note in use.notes:
                 tqdm.write(f"drs-{phase}: {note}")
-            self.num_demos, self.learner = len(demos or ()), None
+            self.learner = None
             if learns:
                 self.learner = make_reward_learner(
                     cfg,
