@@ -30,21 +30,16 @@ from drs_torchrl.envs.maze import (
     observation,
 )
 from drs_torchrl.objectives import DiscriminatorLoss
-from drs_torchrl.apps.maze import (
-    MazeConfigError,
-    StateActionReward,
+from drs_torchrl.apps.maze import MazeConfigError, train, validate
+from drs_torchrl.tasks.maze import demo_episodes, make_env, reward_transform
+from drs_torchrl.tools.maze_analysis import (
     all_state_actions,
-    demo_episodes,
     dense_reward_table,
-    make_env,
     report,
     reward_diagnostics,
-    reward_transform,
     reward_label,
-    train,
-    validate,
 )
-from drs_torchrl.transforms import DrSReward, load_reward
+from drs_torchrl.transforms import DrSReward, StateActionReward, load_reward
 
 ROOT = Path(__file__).resolve().parents[1]
 UP, DOWN, LEFT, RIGHT, STAY = range(5)

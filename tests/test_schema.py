@@ -114,6 +114,15 @@ def test_an_on_policy_algorithm_takes_no_random_warm_up():
     validate_config(composed("learn", "algo=sac_cpu", "algo.learning_starts=1000"), "learn")
 
 
+def test_dqn_is_the_mazes_algo_node_and_is_refused_on_continuous_actions():
+    """conf/algo/dqn.yaml is the maze's `dqn` node (relative links resolve there); drs-learn refuses it elsewhere."""
+    maze = composed("maze", "dqn.lr=0.0005", "dqn.gamma=0.9")
+    assert maze.dqn.name == "dqn" and maze.dqn.updater.optim.lr == 0.0005 and maze.dqn.updater.gamma == 0.9
+    assert maze.dqn.updater.target_update.value_network_update_interval == 100
+    with pytest.raises(ConfigError, match=r"^algo=dqn acts on discrete actions: it runs the maze .*algo=sac_cpu"):
+        validate_config(composed("learn", "algo=dqn"), "learn")
+
+
 def test_settings_an_algorithm_does_not_have_are_not_demanded():
     cfg = composed("learn", "algo=ppo")
     assert "utd" not in cfg.algo and "tau" not in cfg.algo

@@ -20,7 +20,7 @@ from tensordict import TensorDict
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from drs_torchrl.envs.maze import ACTIONS, MOVES, ThreeRoomMaze, decode_cells, observation
-from drs_torchrl.apps.maze import make_env
+from drs_torchrl.tasks.maze import make_env
 from drs_torchrl.updaters.dqn import q_network
 
 torch.set_num_threads(1)

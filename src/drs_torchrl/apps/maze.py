@@ -29,14 +29,12 @@ Choices the paper leaves open, or where this script departs from it (all in ``co
   episodes. Successful episodes end early and so finish more often, which biases this rate upward.
   ``eval_success`` (one greedy episode in each of ``eval.episodes`` grids) is the unbiased figure.
 
-It is a DQN script in the shape of TorchRL's ``sota-implementations``: ``make_*`` factories
-(:func:`make_env`, :func:`make_replay_buffer`, :func:`make_reward`, and the agent from ``conf/maze.yaml``'s
-``dqn.updater`` / ``ppo.updater``: :func:`~drs_torchrl.updaters.dqn.make_dqn_updater`,
-:func:`~drs_torchrl.updaters.ppo.make_ppo_updater`) and one loop in :func:`train`. The TorchRL pieces are the
-batched :class:`~drs_torchrl.envs.maze.ThreeRoomMaze` with a :class:`~drs_torchrl.transforms.StageIndicator`,
-a ``Collector``, a ``ReplayBuffer`` (n-step windows, or one-step samples whose learned reward is
-recomputed from the current discriminator), a ``QValueActor`` with an ``EGreedyModule``, ``DQNLoss``
-and a ``SoftUpdate``/``HardUpdate`` target network. DrS itself is the same reward-learning core as the
+It is a DQN script in the shape of TorchRL's ``sota-implementations``: the maze's pieces come from
+:mod:`drs_torchrl.tasks.maze` (the env with its stage label and reward slot, the shortest-path demonstrations, the
+(s, a) episodes for the stage buffers, greedy evaluation), the agent from ``conf/algo/dqn.yaml`` (placed at ``dqn``;
+:func:`~drs_torchrl.updaters.dqn.make_dqn_updater`) or ``conf/maze.yaml``'s ``ppo.updater``
+(:func:`~drs_torchrl.updaters.ppo.make_ppo_updater`), the reward from :func:`make_reward`, and one loop in
+:func:`train` (:func:`~drs_torchrl.loop.run_algorithm1`). DrS itself is the same reward-learning core as the
 SAC families' (:class:`~drs_torchrl.learners.DrSLearner`: stage buffers, ``DiscriminatorLoss``,
 demonstrations), and the run is logged through the same TorchRL loggers. The reward figure,
 diagnostics and report live in :mod:`drs_torchrl.tools.maze_analysis`.
@@ -44,7 +42,6 @@ diagnostics and report live in :mod:`drs_torchrl.tools.maze_analysis`.
 
 from __future__ import annotations
 
-import functools
 import json
 import os
 import sys
@@ -57,31 +54,36 @@ import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDict
 from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, ReplayBuffer
-from torchrl.envs import TransformedEnv
-from torchrl.envs.transforms import MultiStepTransform, RewardScaling
-from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.envs.transforms import MultiStepTransform
 
 from drs_torchrl.runtime.provenance import code_version
-from drs_torchrl.envs.maze import ACTIONS, GATES, MOVES, OBS_DIMS, ThreeRoomMaze, convert_observation, observation
+from drs_torchrl.envs.maze import ACTIONS, GATES, OBS_DIMS
 from drs_torchrl.learners import (
     DemoDiscriminatorLearner,
     DrSLearner,
     OfflineClassifierLearner,
     SuccessClassifierLearner,
 )
-from drs_torchrl.tools.maze_analysis import (  # noqa: F401 (re-exported: the maze's analysis and report)
+from drs_torchrl.tasks.maze import (
+    FAMILY,
+    REWARD_INPUTS,
     MazeConfigError,
-    all_state_actions,
-    dense_reward_table,
-    plot_reward_map,
+    convertible,
+    demo_episodes,
+    evaluate_greedy,
+    make_env,
     reads_next_state,
-    report,
     reward_coords,
+    reward_transform,
+    sa_trajectory,
+)
+from drs_torchrl.tools.maze_analysis import (
+    plot_reward_map,
+    report,
     reward_diagnostics,
-    reward_label,
 )
 from drs_torchrl.apps.hydra_record import (  # (registers the resolver)
     EMPTY_RUN_DIR,
@@ -102,139 +104,8 @@ from drs_torchrl.runtime.rundir import OldRun, RunDirBusyError, clear_for_new_ru
 from drs_torchrl.transforms import (
     ClassifierReward,
     DrSReward,
-    SemiSparseReward,
-    StageIndicator,
-    StateActionReward,
     load_reward,
 )
-
-REWARD_INPUTS = ("state_action", "next_state")  # R(s, a) as the appendix's tabular analysis, or R(s') as Sec. 4.3
-FAMILY = "three_room_maze"
-
-
-# ----------------------------------------------------------------------------- reward on (s, a)
-def reward_transform(reward, obs_coords: str | None = None, scale: float = 1.0) -> StateActionReward:
-    """The maze's reward on transitions (:class:`~drs_torchrl.transforms.StateActionReward`), the env's observations
-    (coordinate encoding ``obs_coords``) re-encoded to those the reward was learned on (e.g. ``relative``)."""
-    to = None
-    if obs_coords is not None and not isinstance(reward, ClassifierReward):
-        learned_on = reward_coords(reward)
-        if learned_on != obs_coords:
-            to = functools.partial(convert_observation, src=obs_coords, dst=learned_on)
-    return StateActionReward(reward, scale=scale, observation_map=to)
-
-
-def sa_trajectory(
-    episode: TensorDictBase,
-    stage_key: str = "stage",
-    obs_coords: str | None = None,
-    reward_coords: str | None = None,
-    next_state: bool = False,
-) -> TensorDict:
-    """An episode as :meth:`StageBuffers.add_trajectory` reads it: per step, the pair ``(s, a)``
-    (or ``s'`` alone with ``next_state``) and the stage of ``s'``, under ``"next"``; observations
-    re-encoded from ``obs_coords`` to ``reward_coords`` when both are given."""
-    obs = episode.get(("next", "observation") if next_state else "observation")
-    if obs_coords is not None and reward_coords is not None:
-        obs = convert_observation(obs, obs_coords, reward_coords)
-    inner = TensorDict(
-        {
-            "observation": obs,
-            "action": episode.get("action").to(torch.float32),
-            stage_key: episode.get(("next", stage_key)),
-        },
-        batch_size=episode.batch_size,
-    )
-    return TensorDict({"next": inner}, batch_size=episode.batch_size)
-
-
-# ----------------------------------------------------------------------------- building blocks
-def make_env(
-    map_name: str,
-    num_envs: int,
-    max_steps: int,
-    seed: int,
-    reward_name: str,
-    coords: str = "onehot",
-    drs: DrSReward | None = None,
-    dense_coef: float = 1.0,
-    reward_scale: float = 1.0,
-) -> TransformedEnv:
-    """The maze with its stage label; ``semi_sparse`` writes ``k - 1`` as the env reward, ``dense``
-    the env's distance-shaped reward (``dense_coef``), and a given DrS reward writes ``R(s, a)``.
-    ``reward_scale`` != 1 appends TorchRL's ``RewardScaling`` (the reward the agent trains on)."""
-    env = TransformedEnv(
-        ThreeRoomMaze(
-            map_name,
-            num_envs=num_envs,
-            max_steps=max_steps,
-            seed=seed,
-            coords=coords,
-            dense_coef=dense_coef if reward_name == "dense" else 0.0,
-        ),
-        StageIndicator(["success"], indicators_key=None),
-    )
-    if reward_name == "semi_sparse":  # scaled here: TorchRL's RewardScaling refuses its bounded reward spec
-        env.append_transform(SemiSparseReward(1, offset=-1.0, scale=reward_scale))
-    if drs is not None:
-        env.append_transform(reward_transform(drs, coords))
-    if reward_scale != 1.0 and reward_name != "semi_sparse":
-        env.append_transform(RewardScaling(loc=0.0, scale=float(reward_scale)))
-    return env
-
-
-def evaluate_greedy(actor, env: TransformedEnv) -> dict[str, float]:
-    """One greedy episode in each of the env's grids: success rate and mean episode length."""
-    with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
-        td = env.rollout(env.base_env.max_steps, actor, break_when_any_done=False)
-    done = td.get(("next", "done")).squeeze(-1)  # (n, T)
-    first = done.float().argmax(-1)
-    idx = torch.arange(done.shape[0])
-    success = td.get(("next", "success")).squeeze(-1)[idx, first]
-    return {"eval_success": float(success.float().mean()), "eval_length": float((first + 1).float().mean())}
-
-
-def demo_episodes(
-    map_name: str, n: int, seed: int, coords: str = "onehot", next_state: bool = False
-) -> list[TensorDict]:
-    """``n`` shortest-path episodes on a map (Algorithm 1, line 3: optional demonstrations for the
-    success buffer), from random bottom-room starts to random top-room goals. Per step the
-    observation of ``s`` (of ``s'`` with ``next_state``), the action and the stage of ``s'``."""
-    env = ThreeRoomMaze(map_name, num_envs=1, seed=seed)
-    dist = env.shortest_distances()
-    g = torch.Generator().manual_seed(seed)
-    out = []
-    for _ in range(n):
-        s = env.start_cells[torch.randint(len(env.start_cells), (1,), generator=g)].reshape(2)
-        gi = int(torch.randint(len(env.goal_cells), (1,), generator=g))
-        goal, d = env.goal_cells[gi], dist[gi]
-        obs, acts = [], []
-        while not torch.equal(s, goal):
-            for a in torch.randperm(4, generator=g).tolist():  # a random one of the shortest moves
-                t = s + MOVES[a]
-                if d[t[0], t[1]] == d[s[0], s[1]] - 1:
-                    break
-            obs.append(observation(env.grid, t if next_state else s, goal, coords))
-            acts.append(torch.nn.functional.one_hot(torch.tensor(a), len(ACTIONS)).float())
-            s = t
-        stage = torch.zeros(len(obs), 1, dtype=torch.long)
-        stage[-1] = 1
-        out.append(
-            TensorDict(
-                {
-                    "next": TensorDict(
-                        {"observation": torch.stack(obs), "action": torch.stack(acts), "stage": stage},
-                        batch_size=[len(obs)],
-                    )
-                },
-                batch_size=[len(obs)],
-            )
-        )
-    return out
-
-
-def _convertible(src: str, dst: str) -> bool:
-    return src == dst or src in ("onehot", "scalar") or dst == "patch"
 
 
 def _entry(cfg: DictConfig):
@@ -309,7 +180,7 @@ def validate(cfg: DictConfig) -> None:
             f"reward.coords must be null or one of {sorted(OBS_DIMS)}, got {cfg.reward.get('coords')!r}",
         ),
         (
-            _convertible(cfg.coords, cfg.reward.get("coords") or cfg.coords),
+            convertible(cfg.coords, cfg.reward.get("coords") or cfg.coords),
             f"a reward on coords={cfg.reward.get('coords')} cannot read the agent's coords={cfg.coords} observations "
             "(absolute positions cannot be recovered from relative ones): use reward.coords=relative, patch or null",
         ),
@@ -358,7 +229,7 @@ def make_reward(cfg: DictConfig, map_name: str, learn: bool) -> tuple[DrSLearner
             raise MazeConfigError(
                 f"{r.checkpoint} is not a maze reward (family {meta.get('family')!r}, inputs {drs.reward_in_keys})"
             )
-        if not _convertible(cfg.coords, reward_coords(drs)):
+        if not convertible(cfg.coords, reward_coords(drs)):
             raise MazeConfigError(
                 f"{r.checkpoint} was learned with coords={reward_coords(drs)}, which this run's "
                 f"coords={cfg.coords} observations cannot be re-encoded to; use coords={reward_coords(drs)}"

@@ -42,6 +42,11 @@ def collector_for_device(collector: DictConfig, device: torch.device) -> tuple[D
 
 def validate_config(cfg: DictConfig, phase: str, resume: bool = False) -> None:
     """Reject values that would fail later or silently do nothing (``resume``: ``cfg`` is a run's saved config)."""
+    if cfg.algo.get("name") == "dqn":  # conf/algo/dqn.yaml: a discrete-action agent
+        raise ConfigError(
+            "algo=dqn acts on discrete actions: it runs the maze (drs-learn env=maze algo=dqn, or drs-maze); this "
+            "family's actions are continuous: use algo=sac_cpu (the default), sac_paper, crossq, ppo, ..."
+        )
     check(cfg, RunSchema)
     check_constructor_arguments(cfg)
     a = cfg.algo

@@ -18,7 +18,6 @@ import numpy as np
 import torch
 from omegaconf import ListConfig, OmegaConf
 
-from drs_torchrl.runtime.errors import UserError
 from drs_torchrl.envs.maze import (
     ACTIONS,
     GATES,
@@ -30,25 +29,8 @@ from drs_torchrl.envs.maze import (
     make_grid,
     observation,
 )
+from drs_torchrl.tasks.maze import MazeConfigError, reads_next_state, reward_coords  # noqa: F401 (re-exported)
 from drs_torchrl.transforms import DrSReward
-
-
-class MazeConfigError(UserError, ValueError):
-    """A ``drs-maze`` setting that cannot work, with the fix in its message."""
-
-
-def reads_next_state(reward: DrSReward) -> bool:
-    """Whether a maze reward reads ``s'`` (``reward.input=next_state``) rather than ``(s, a)``."""
-    return reward.metadata.get("reward_on") == "next_state"
-
-
-def reward_coords(reward: DrSReward) -> str:
-    """The coordinate encoding a maze reward was learned with (from its input size)."""
-    dim = reward.in_shapes["observation"]
-    for coords, d in OBS_DIMS.items():
-        if d == dim:
-            return coords
-    raise MazeConfigError(f"a maze reward reads observations of size {sorted(OBS_DIMS.values())}, this one {dim}")
 
 
 def all_state_actions(
