@@ -4,8 +4,10 @@ on (s, a) and ``drs-maze`` end to end (learn on the train map, reuse on the test
 import csv
 import json
 import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -716,6 +718,57 @@ def test_learned_baselines_run_on_the_maze_core_and_are_reused(name, tmp_path):
 
 
 @pytest.mark.sim
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["drs", "gail"])
+def test_a_stopped_maze_run_saves_its_state_and_resume_finishes_it(tmp_path, name):
+    """SIGTERM: the training state (agent, replay buffer, the learner and its buffers: GAIL's agent transitions too);
+    a new run there is refused naming resume=; a resume takes only its RESUME_SETTINGS; it finishes the run, its
+    train.csv continuing the interrupted one's, and then keeps no state."""
+    run = tmp_path / "run"
+    exe = Path(sys.executable).parent / "drs-maze"
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "drs_torchrl.apps.maze"]
+    args = [f"reward.name={name}", "demos=10", *(o for o in TINY if not o.startswith("total_frames="))]
+    proc = subprocess.Popen(
+        [*cmd, *args, "total_frames=10000000", f"hydra.run.dir={run}"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.time() + 150
+    while time.time() < deadline and proc.poll() is None:
+        if (run / "train.csv").is_file() and len((run / "train.csv").read_text().splitlines()) >= 3:
+            break  # evaluated at 0 and 512: the learner and the replay buffer hold data
+        time.sleep(0.3)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, err[-3000:]
+    assert f"continue with drs-maze resume={run}" in err
+    stopped_at = int((run / "checkpoints" / "state" / "COMPLETE").read_text())
+    assert stopped_at >= 512 and not (run / "summary.json").exists()
+    state = sorted(p.name for p in (run / "checkpoints" / "state").iterdir())
+    assert "replay" in state and ("stage_buffers" in state if name == "drs" else "agent_transitions" in state)
+    before = (run / "train.csv").read_text()
+    for extra, expect in [
+        ([f"hydra.run.dir={run}"], f"continue it with drs-maze resume={run}"),  # a new run over it
+        ([f"resume={run}", "dqn.lr=0.1"], "cannot change dqn.lr of a maze run being resumed"),
+    ]:
+        p = subprocess.run([*cmd, *extra], capture_output=True, text=True, timeout=120, check=False)
+        assert p.returncode == 2 and expect in p.stderr, (extra, p.stderr[-2000:])
+        assert (run / "train.csv").read_text() == before
+    p = subprocess.run(
+        [*cmd, f"resume={run}", f"total_frames={stopped_at + 512}"], capture_output=True, text=True, timeout=300
+    )
+    assert p.returncode == 0, p.stderr[-3000:]
+    s = json.loads((run / "summary.json").read_text())
+    assert s["resumed_from"] == stopped_at and s["frames"] >= stopped_at + 512 and s["disc_updates"] > 0
+    frames = [int(r["frames"]) for r in csv.DictReader((run / "train.csv").read_text().splitlines())]
+    assert frames[0] == 0 and frames == sorted(set(frames)) and frames[-1] == s["frames"]
+    assert not (run / "checkpoints").exists() and (run / "reward.pt").is_file()
+    p = subprocess.run([*cmd, f"resume={run}"], capture_output=True, text=True, timeout=120, check=False)
+    assert p.returncode == 2 and "finished (summary.json)" in p.stderr
+
+
+@pytest.mark.sim
 def test_an_existing_run_directory_is_refused_unless_overwrite(tmp_path):
     run = tmp_path / "run"
     run.mkdir()
@@ -845,7 +898,7 @@ def test_drs_learn_and_drs_reuse_run_the_maze_family(tmp_path, cli):
     # what the maze does not take is refused with the reason, nothing written
     for args, expect in [
         (["algo=sac_cpu"], "env=maze runs algo=dqn (the paper's maze agent) or algo=ppo, got algo=sac_cpu"),
-        ([f"resume={learn_dir}"], "a maze run keeps no training state"),
+        ([f"resume={learn_dir}"], "finished (summary.json) and a finished maze run keeps no training state"),
         (["env.split=test"], "its settings are conf/maze.yaml's"),
     ]:
         code, err = cli("learn", "env=maze", *args, f"hydra.run.dir={tmp_path / 'bad'}")

@@ -3,6 +3,7 @@
 import torch
 from tensordict import TensorDict
 from torchrl.data import LazyTensorStorage, ReplayBuffer
+from torchrl.envs.transforms import MultiStepTransform
 
 from drs_torchrl.data import TRAJ_STAGE_KEY, StageBuffers
 from drs_torchrl.data.persistence import dump_buffer, load_buffer
@@ -22,6 +23,42 @@ def test_wrapped_buffer_round_trip_keeps_age_order(tmp_path):
     assert sorted(rb2[:10]["x"].squeeze(-1).tolist()) == list(range(4, 14))
     rb2.extend(items(100, 102))  # must replace the two oldest (4 and 5)
     assert sorted(rb2[:10]["x"].squeeze(-1).tolist()) == [*range(6, 14), 100, 101]
+
+
+def _time_major(rb) -> torch.Tensor:
+    """A 2-D storage's filled rows, oldest first: ``(T, envs)``."""
+    data, cursor = rb.storage._storage["x"], rb._writer._cursor % rb.storage._storage.shape[0]
+    rows = len(rb) // data.shape[1]
+    return data[:rows] if rows < data.shape[0] else torch.cat([data[cursor:], data[:cursor]])
+
+
+def test_a_buffer_with_a_time_dimension_round_trips_wrapped_and_past_its_inverse_transform(tmp_path):
+    """The maze's n-step buffer: ``LazyTensorStorage(ndim=2)`` holds ``(T, envs)`` and is extended with ``(envs, T)``;
+    its transform (``MultiStepTransform``) made the stored windows, so restoring must not run it again."""
+
+    def make():
+        return ReplayBuffer(storage=LazyTensorStorage(60, ndim=2), transform=MultiStepTransform(3, 0.9))
+
+    for batches in (2, 7):  # 16 of 20 rows; wrapped twice with the cursor mid-ring
+        rb = make()
+        for b in range(batches):
+            x = (100.0 * b + torch.arange(3 * 8, dtype=torch.float32)).reshape(3, 8)
+            done = torch.zeros(3, 8, 1, dtype=torch.bool)
+            rb.extend(
+                TensorDict(
+                    {
+                        "x": x,
+                        "next": {"x": x + 1, "reward": torch.ones(3, 8, 1), "done": done, "terminated": done},
+                    },
+                    [3, 8],
+                )
+            )
+        dump_buffer(rb, tmp_path / f"rb{batches}")
+        rb2 = make()
+        load_buffer(rb2, tmp_path / f"rb{batches}")
+        assert len(rb2) == len(rb) and torch.equal(_time_major(rb2), _time_major(rb))
+        assert torch.equal(rb2.storage._storage["steps_to_next_obs"][: len(rb) // 3].unique(), torch.tensor([3]))
+        assert rb2._transform[0]._buffer is None  # the restore went past the n-step transform
 
 
 def test_snapshot_size_follows_content_not_capacity(tmp_path):

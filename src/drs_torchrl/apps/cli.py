@@ -87,8 +87,8 @@ def resume_config(run_dir: Path, phase: str, overrides: list[str], composed: Dic
         saved = load_run_config(run_dir, needs=("phase",))
     except RunFileError as exc:
         raise ResumeError(f"cannot resume: {exc}") from None
-    if maze := maze_run_message(run_dir):  # a maze run keeps no training state: nothing to resume
-        raise ResumeError(f"cannot resume: {maze}; a maze run is not resumed, it is run again (minutes)")
+    if maze := maze_run_message(run_dir):  # drs-maze resumes its own runs
+        raise ResumeError(f"cannot resume: {maze}; continue it with drs-maze resume={run_dir}")
     if saved.get("phase") != phase:
         raise ResumeError(f"{run_dir} is a drs-{saved.get('phase')} run; resume it with drs-{saved.get('phase')}")
     rename_settings(saved)
@@ -309,7 +309,8 @@ def maze_arguments(args: list[str], phase: str) -> list[str] | None:
     The maze is a family of the same loop of Algorithm 1 (``apps/maze.py`` builds its pieces: the batched grid
     env, the (s, a) reward, the shortest-path demonstrations) with its own config, ``conf/maze.yaml``: its env,
     reward input and agents share no setting with the ManiSkill families' groups. So ``algo=dqn|ppo`` becomes
-    ``agent=``, ``reward=NAME`` becomes ``reward.name=NAME``, and the other overrides are ``conf/maze.yaml``'s."""
+    ``agent=``, ``reward=NAME`` becomes ``reward.name=NAME``, and the other overrides (``resume=RUN_DIR`` too) are
+    ``conf/maze.yaml``'s."""
     if "env=maze" not in args:
         return None
     out = [f"phase={phase}"]
@@ -323,10 +324,10 @@ def maze_arguments(args: list[str], phase: str) -> list[str] | None:
             out.append(f"agent={value}")
         elif key == "reward":
             out.append(f"reward.name={value}")
-        elif key in ("resume", "init_from", "phase") or key.startswith(("env.", "algo.")):
+        elif key in ("init_from", "phase") or key.startswith(("env.", "algo.")):
             raise MazeFamilyError(
-                f"env=maze does not take {key}=: a maze run keeps no training state (run it again) and its "
-                "settings are conf/maze.yaml's (e.g. dqn.lr=..., map=test_shift3); see drs-maze --help"
+                f"env=maze does not take {key}=: its settings are conf/maze.yaml's (e.g. dqn.lr=..., "
+                "map=test_shift3); see drs-maze --help"
             )
         else:
             out.append(a)

@@ -42,8 +42,10 @@ diagnostics and report live in :mod:`drs_torchrl.tools.maze_analysis`.
 
 from __future__ import annotations
 
+import csv
 import json
 import os
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -59,6 +61,13 @@ from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, ReplayBuffer
 from torchrl.envs.transforms import MultiStepTransform
 
+from drs_torchrl.runtime.checkpoint import (
+    Checkpointer,
+    TrainingStateError,
+    find_training_state,
+    rng_state,
+    set_rng_state,
+)
 from drs_torchrl.runtime.provenance import code_version
 from drs_torchrl.envs.maze import ACTIONS, GATES, OBS_DIMS
 from drs_torchrl.learners import (
@@ -100,7 +109,16 @@ from drs_torchrl.runtime.run_logger import RunLogger
 from drs_torchrl.loop import EpisodeWindow, Progress, Schedule, run_algorithm1
 from drs_torchrl.apps.reward_registry import available_rewards, registry_entry
 from drs_torchrl.rewards import static_checkpoint_error
-from drs_torchrl.runtime.rundir import OldRun, RunDirBusyError, clear_for_new_run, lock_run_dir, unlock_run_dir
+from drs_torchrl.runtime.rundir import (
+    RunFileError,
+    load_run_config,
+    maze_run_message,
+    OldRun,
+    RunDirBusyError,
+    clear_for_new_run,
+    lock_run_dir,
+    unlock_run_dir,
+)
 from drs_torchrl.transforms import (
     ClassifierReward,
     DrSReward,
@@ -190,29 +208,31 @@ def validate(cfg: DictConfig) -> None:
         raise MazeConfigError("; ".join(bad))
 
 
-RUN_FILES = ("summary.json", "train.csv", "config.yaml", "reward.pt", "policy.pt")
+RUN_FILES = ("summary.json", "train.csv", "config.yaml", "reward.pt", "policy.pt", "checkpoints")
 
 
 def check_run_dir(run_dir: Path, overwrite: bool) -> OldRun:
-    """Refuse a directory that holds a maze run (its files would be mixed or overwritten), unless
-    ``overwrite``: then that run's files are set aside (returned) for the caller to drop once the new run
-    has started. (A maze run takes minutes and keeps no training state, so there is nothing to resume: an
-    interrupted one is run again.)"""
+    """Refuse a directory that holds a maze run (its files would be mixed or overwritten), unless ``overwrite``: then
+    that run's files are set aside (returned) for the caller to drop once the new run has started. A run a signal
+    stopped holds its training state: the refusal says how to continue it."""
+    stopped = (run_dir / "checkpoints" / "state" / "COMPLETE").is_file()
     return clear_for_new_run(
         run_dir,
         RUN_FILES,
         overwrite,
         error=MazeConfigError,
-        options="choose another hydra.run.dir",
+        options=(f"continue it with drs-maze resume={run_dir}, " if stopped else "") + "choose another hydra.run.dir",
         also=("reward_map.png",),
     )
 
 
 # ----------------------------------------------------------------------------- factories
-def make_reward(cfg: DictConfig, map_name: str, learn: bool) -> tuple[DrSLearner | None, DrSReward | None]:
+def make_reward(
+    cfg: DictConfig, map_name: str, learn: bool, resume: bool = False
+) -> tuple[DrSLearner | None, DrSReward | None]:
     """The DrS reward of the run: learned here by a :class:`~drs_torchrl.learners.DrSLearner` (phase 1,
     the same reward-learning core as the SAC families), frozen from a checkpoint (phase 2), or none
-    (a baseline written by the env)."""
+    (a baseline written by the env). ``resume``: the demonstrations are in the stage buffers' saved state."""
     r = cfg.reward
     if _is_classifier(_entry(cfg)):
         return make_classifier_reward(cfg, map_name, learn)
@@ -262,7 +282,7 @@ def make_reward(cfg: DictConfig, map_name: str, learn: bool) -> tuple[DrSLearner
     )
     demos = (
         [ep.get("next") for ep in demo_episodes(map_name, int(cfg.demos), int(cfg.seed), rc, on_next)]
-        if cfg.demos
+        if cfg.demos and not resume
         else []
     )
     learner = DrSLearner(
@@ -434,9 +454,10 @@ class _MazeLearner:
 
 
 # ----------------------------------------------------------------------------- training
-def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
+def train(cfg: DictConfig, run_dir: str | os.PathLike, resume: bool = False) -> dict:
     """Phase 1 or phase 2 (or a baseline) of the maze experiment, through the loop of Algorithm 1
-    (:func:`drs_torchrl.loop.run_algorithm1`); writes into ``run_dir``."""
+    (:func:`drs_torchrl.loop.run_algorithm1`); writes into ``run_dir``. ``resume``: continue the run in ``run_dir``
+    from the training state it saved when a signal stopped it (``cfg`` is its saved config, see :func:`resume_config`)."""
     validate(cfg)
     run_dir = Path(run_dir)
     torch.set_num_threads(int(cfg.num_threads))
@@ -445,17 +466,20 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
     learn, a = cfg.phase == "learn", algo_config(cfg)
     ppo = cfg.get("agent", "dqn") == "ppo"
     map_name = cfg.map or ("train" if learn else "test")
-    learner, drs = make_reward(cfg, map_name, learn)
-    # the run directory is written only once the reward (and its checkpoint) is known to be usable; a run it
-    # replaces (overwrite=true) is set aside until this one's config is written
-    old = check_run_dir(run_dir, bool(cfg.get("overwrite", False)))
-    try:
-        run_dir.mkdir(parents=True, exist_ok=True)
-        OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
-    except BaseException:
-        old.restore()
-        raise
-    replaced(run_dir, old)  # the old run's files go; this run's Hydra record becomes the directory's .hydra
+    if resume:
+        find_training_state(run_dir)  # fail before building anything
+    learner, drs = make_reward(cfg, map_name, learn, resume)
+    if not resume:
+        # the run directory is written only once the reward (and its checkpoint) is known to be usable; a run it
+        # replaces (overwrite=true) is set aside until this one's config is written
+        old = check_run_dir(run_dir, bool(cfg.get("overwrite", False)))
+        try:
+            run_dir.mkdir(parents=True, exist_ok=True)
+            OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)
+        except BaseException:
+            old.restore()
+            raise
+        replaced(run_dir, old)  # the old run's files go; this run's Hydra record becomes the directory's .hydra
     scale = float(a.get("reward_scale", 1.0))
     # the env writes R(s, a) where the agent does not recompute it: n-step sums (formed when transitions are
     # stored) and PPO's batches (see the module docstring)
@@ -466,22 +490,38 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
     )  # fmt: skip
     eval_env = make_env(map_name, cfg.eval.episodes, cfg.max_steps, cfg.seed + 10_000, cfg.reward.name, cfg.coords)
     updater = make_updater(cfg, env, drs, learn)
+    episodes = EpisodeWindow(100, 1, lambda ep: ep.get(("next", "reward")))
+    wrapped = _MazeLearner(learner, cfg, drs) if learner is not None else None
+    progress, earlier = Progress(), {"wall_s": 0.0, "cpu_s": 0.0}
+    # the training state (policy, optimiser, replay buffer, stage buffers, counters, RNG), as drs-learn's: written
+    # only when a signal stops the run before its budget (a finished maze run keeps none: it takes minutes)
+    state = _MazeState(run_dir, cfg.phase, updater, learner, wrapped, episodes, progress)
+    if resume:
+        earlier = state.load()
+        env.set_seed(int(cfg.seed) + 1 + progress.frames)  # fresh episodes, not the first process's
+        OmegaConf.save(cfg, run_dir / "config.yaml", resolve=True)  # with this process's total_frames
     collector = Collector(
         env,
         updater.policy,
         frames_per_batch=int(a.frames_per_batch),
-        total_frames=int(cfg.total_frames),
+        total_frames=int(cfg.total_frames) - progress.frames,
         auto_register_policy_transforms=False,
     )
     record = _MazeRecord(
-        RunLogger(run_dir, tensorboard=bool(cfg.get("tensorboard", True)), csv_files=True),
+        RunLogger(
+            run_dir,
+            tensorboard=bool(cfg.get("tensorboard", True)),
+            csv_files=True,
+            resume_step=progress.frames if resume else None,
+        ),
         learner,
         getattr(updater, "explore", None),
         bool(cfg.verbose),
         ("loss_objective", "loss_critic") if ppo else ("dqn_loss",),
+        earlier=earlier,
+        rows=_logged_rows(run_dir / "train.csv") if resume else (),
     )
-    episodes = EpisodeWindow(100, 1, lambda ep: ep.get(("next", "reward")))
-    wrapped = _MazeLearner(learner, cfg, drs) if learner is not None else None
+    state.record = record
 
     def evaluate() -> dict[str, float]:
         window = episodes.row()
@@ -492,15 +532,17 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
         }
 
     def save() -> dict[str, str]:
-        torch.save(
-            updater.policy_checkpoint()["qnet"] if not ppo else updater.actor.state_dict(), run_dir / "policy.pt"
-        )
+        policy = updater.policy_checkpoint()["qnet"] if not ppo else updater.actor.state_dict()
+        if progress.frames < int(cfg.total_frames):  # stopped by a signal before the budget: what a resume needs
+            state.save(policy)
+        torch.save(policy, run_dir / "policy.pt")
         return {"policy": str(run_dir / "policy.pt")}
 
     try:
-        if learner is not None:
+        if learner is not None and not resume:
             learner.prepare(env)  # ORIL: random-walk episodes and the offline fit, before the first step
-        record.log("eval", 0, evaluate())  # the untrained agent: every curve starts at 0 env steps
+        if not resume:
+            record.log("eval", 0, evaluate())  # the untrained agent: every curve starts at 0 env steps
         interval = int(cfg.eval.interval)
         summary = run_algorithm1(
             collector,
@@ -510,18 +552,92 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike) -> dict:
             logger=record,
             evaluate=evaluate,
             save=save,
-            # evaluation and training statistics share the row; no training state (a maze run takes minutes)
+            # evaluation and training statistics share the row; the training state only when stopped early (save)
             schedule=Schedule(int(cfg.total_frames), interval, interval, checkpoint_interval=10**12),
-            progress=Progress(),
+            progress=progress,
             name="drs-maze",
             progress_bar=False,
         )
     finally:
         collector.shutdown()
         record.close()
-    if summary["interrupted"]:  # no training state to resume from: the run is left unfinished (no summary.json)
+    if summary["interrupted"]:  # the training state is saved: drs-maze resume=RUN_DIR continues (no summary.json)
         return summary
-    return _finish(cfg, run_dir, summary, record, map_name, drs, learner, updater)
+    summary["resumed_from"] = progress.resumed_from
+    out = _finish(cfg, run_dir, summary, record, map_name, drs, learner, updater)
+    state.remove()  # finished: the state an earlier interruption left is not needed any more
+    return out
+
+
+class _MazeState:
+    """A maze run's training state through drs-learn's :class:`~drs_torchrl.runtime.checkpoint.Checkpointer`
+    (``RUN_DIR/checkpoints/state``): the agent (``updater.state_dict()``), its replay buffer, the reward learner
+    and its buffers (GAIL's own buffer of the agent's transitions too), the loop's counters, the recent episodes and
+    the RNG states."""
+
+    def __init__(
+        self, run_dir: Path, phase: str, updater, learner, wrapped, episodes: EpisodeWindow, progress: Progress
+    ):
+        self.run_dir, self.phase, self.updater, self.learner = run_dir, phase, updater, learner
+        self.episodes, self.progress = episodes, progress
+        self.buffers = dict(updater.buffers)
+        if wrapped is not None and wrapped.agent_rb is not None:
+            self.buffers["agent_transitions"] = wrapped.agent_rb
+        self.record = None
+
+    def _checkpointer(self) -> Checkpointer:
+        return Checkpointer(self.run_dir, self.buffers, self.learner)  # (makes checkpoints/ only when used)
+
+    def save(self, policy) -> None:
+        u = self.updater.state_dict()
+        payload = {
+            "phase": self.phase,
+            "algo": self.updater.name,
+            "counters": {
+                "frames": self.progress.frames,
+                "updates": u.pop("updates"),
+                "owed_updates": u.pop("owed_updates"),
+                "disc_updates": self.learner.updates if self.learner is not None else 0,
+                "last_eval_frames": self.progress.last_eval_frames,
+                "wall_s": self.record.wall_s(),
+                "cpu_s": self.record.cpu_s(),
+            },
+            **u,
+            "learner": self.learner.state_dict() if self.learner is not None else None,
+            "recent_episodes": list(self.episodes.recent),
+            "rng": rng_state(),
+        }
+        ck = self._checkpointer()
+        ck.check_room([policy], payload)
+        ck.save_state(payload)
+
+    def load(self) -> dict:
+        """Restore everything from the newest complete state; returns the earlier processes' wall and CPU seconds."""
+        ck = self._checkpointer()
+        payload, state_dir = ck.read_state(self.phase)
+        if payload.get("algo") != self.updater.name:
+            raise TrainingStateError(
+                f"{self.run_dir}'s training state is {payload.get('algo')}'s, this run's agent is {self.updater.name}"
+            )
+        c = payload["counters"]
+        self.progress.frames, self.progress.last_eval_frames = int(c["frames"]), int(c["last_eval_frames"])
+        self.progress.resumed_from = self.progress.frames
+        known = ("format", "version", "phase", "algo", "counters", "learner", "recent_episodes", "rng")
+        state = {k: v for k, v in payload.items() if k not in known}
+        self.updater.load_state_dict({**state, "updates": c["updates"], "owed_updates": c["owed_updates"]})
+        ck.restore_buffers(state_dir, payload["learner"])
+        self.episodes.recent.extend(tuple(e) for e in payload["recent_episodes"])
+        set_rng_state(payload["rng"])
+        return {"wall_s": float(c["wall_s"]), "cpu_s": float(c["cpu_s"])}
+
+    def remove(self) -> None:
+        shutil.rmtree(self.run_dir / "checkpoints", ignore_errors=True)
+
+
+def _logged_rows(path: Path) -> list[dict]:
+    """The rows an earlier process of a resumed run wrote to ``train.csv`` (numbers as floats)."""
+    with path.open(newline="") as f:
+        return [{k: float(v) if v not in ("", None) else float("nan") for k, v in r.items()} for r in csv.DictReader(f)]
 
 
 class _MazeRecord:
@@ -529,12 +645,22 @@ class _MazeRecord:
     evaluation, the training success, epsilon, and the update and discriminator statistics the loop logged since
     the previous row (the loop's train rows come at the same env steps and are folded into it)."""
 
-    def __init__(self, logger: RunLogger, learner, explore, verbose: bool, loss_keys=("dqn_loss",)):
+    def __init__(
+        self, logger: RunLogger, learner, explore, verbose: bool, loss_keys=("dqn_loss",), earlier=None, rows=()
+    ):
         self.logger, self.learner, self.explore, self.verbose = logger, learner, explore, verbose
         self.loss_keys = tuple(loss_keys)
         self.pending: dict = {}
-        self.rows: list[dict] = []
+        self.rows: list[dict] = list(rows)  # a resumed run: the earlier processes' rows
         self.t0, self.cpu0 = time.perf_counter(), time.process_time()
+        self.earlier = earlier or {"wall_s": 0.0, "cpu_s": 0.0}  # the earlier processes' seconds
+
+    def wall_s(self) -> float:
+        """The run's wall-clock seconds so far, its earlier processes included."""
+        return self.earlier["wall_s"] + time.perf_counter() - self.t0
+
+    def cpu_s(self) -> float:
+        return self.earlier["cpu_s"] + time.process_time() - self.cpu0
 
     def log(self, stream: str, frames: int, row: dict) -> None:
         if stream == "train":
@@ -543,7 +669,7 @@ class _MazeRecord:
         p, nan = self.pending, float("nan")
         out = {
             "frames": frames,
-            "wall_s": round(time.perf_counter() - self.t0, 2),
+            "wall_s": round(self.wall_s(), 2),
             "updates": int(p.get("updates", self.rows[-1]["updates"] if self.rows else 0)),
             "epsilon": float(self.explore.eps) if self.explore is not None else nan,
             **row,
@@ -582,7 +708,7 @@ class _MazeRecord:
 
 def _finish(cfg, run_dir: Path, loop_summary: dict, record: _MazeRecord, map_name: str, drs, learner, updater) -> dict:
     """``summary.json``, the reward checkpoint and its figure."""
-    rows, wall = record.rows, time.perf_counter() - record.t0
+    rows, wall = record.rows, record.wall_s()
     summary = {
         "phase": cfg.phase,
         "map": map_name,
@@ -595,9 +721,10 @@ def _finish(cfg, run_dir: Path, loop_summary: dict, record: _MazeRecord, map_nam
         "reward_alpha": getattr(drs, "alpha", None),
         "reward_coords": reward_coords(drs) if (drs is not None and reward_coords(drs) != cfg.coords) else None,
         "frames": loop_summary["frames"],
+        "resumed_from": loop_summary.get("resumed_from"),  # env steps where this process took over (None: from 0)
         "updates": updater.updates,
         "wall_time_s": round(wall, 1),
-        "cpu_time_s": round(time.process_time() - record.cpu0, 1),
+        "cpu_time_s": round(record.cpu_s(), 1),
         "env_steps_per_s": round(loop_summary["frames"] / wall, 1),
         "interrupted": loop_summary["interrupted"],
         "final_eval_success": rows[-1]["eval_success"],
@@ -620,31 +747,75 @@ def _finish(cfg, run_dir: Path, loop_summary: dict, record: _MazeRecord, map_nam
 
 
 # ----------------------------------------------------------------------------- CLI
+RESUME_SETTINGS = ("total_frames", "verbose", "tensorboard", "num_threads")  # what a resume may change
+
+
+def resume_config(run_dir: Path, overrides: list[str], composed: DictConfig) -> DictConfig:
+    """The saved config of the maze run in ``run_dir``, with this invocation's :data:`RESUME_SETTINGS` overrides
+    (values as Hydra parsed them into ``composed``); any other override is refused: the run's weights and buffers
+    were made with its saved settings."""
+    if not (run_dir / "config.yaml").is_file():
+        raise MazeConfigError(f"cannot resume: {run_dir} holds no maze run (no config.yaml)")
+    if maze_run_message(run_dir) is None:
+        raise MazeConfigError(f"cannot resume: {run_dir} is not a drs-maze run; resume it with drs-learn/drs-reuse")
+    if (run_dir / "summary.json").is_file():
+        raise MazeConfigError(
+            f"cannot resume: {run_dir} finished (summary.json) and a finished maze run keeps no training state; "
+            "start a new run (another hydra.run.dir) for more env steps"
+        )
+    try:
+        saved = load_run_config(run_dir, needs=("phase", "dqn", "reward"))
+    except RunFileError as exc:
+        raise MazeConfigError(f"cannot resume: {exc}") from None
+    for o in overrides:
+        key, _, value = o.partition("=")
+        key = key.lstrip("+~")
+        if key == "resume" or key.startswith("hydra.") or (key == "phase" and value == saved.phase):
+            continue  # (drs-learn/drs-reuse env=maze resume=... name the phase)
+        if key not in RESUME_SETTINGS:
+            raise MazeConfigError(
+                f"cannot change {key} of a maze run being resumed (its weights and buffers were made with its saved "
+                f"settings; a resume takes {', '.join(RESUME_SETTINGS)}); start a new run instead"
+            )
+        OmegaConf.update(saved, key, OmegaConf.select(composed, key), merge=True)
+    saved.resume = str(run_dir)
+    return saved
+
+
 @console_script("drs-maze")  # DRS_LIBRARY_MESSAGES=1 shows TorchRL's storage notices again
 @hydra.main(config_path=conf_dir(), config_name="maze", version_base=None)
 def main(cfg: DictConfig) -> None:
-    """``drs-maze phase=learn|reuse|report ...`` (see conf/maze.yaml)."""
-    run_dir = HydraConfig.get().runtime.output_dir
+    """``drs-maze phase=learn|reuse|report ...`` or ``drs-maze resume=RUN_DIR`` (see conf/maze.yaml)."""
+    run_dir = hydra_dir = HydraConfig.get().runtime.output_dir
+    resume = bool(cfg.get("resume")) and cfg.phase != "report"
+    record = current_record(run_dir) if cfg.phase != "report" else None  # Hydra's (a resume's: beside the run's)
     try:
-        check_added_settings(cfg, list(HydraConfig.get().overrides.task), "maze", "maze", MazeConfigError)
-        if cfg.phase != "report" and empty_run_dir():
+        overrides = list(HydraConfig.get().overrides.task)
+        check_added_settings(cfg, overrides, "maze", "maze", MazeConfigError)
+        if cfg.phase != "report" and not resume and empty_run_dir():
             raise MazeConfigError(EMPTY_RUN_DIR)
         if cfg.phase == "report":
             res = report(cfg.report.root, cfg.report.out)
             print(f"drs-maze: report of {res['runs']} runs in {res['out']}")
             return
+        if resume:
+            run_dir = str(Path(cfg.resume))
+            if Path(hydra_dir).resolve() != Path(run_dir).resolve():  # hydra.run.dir beside resume=: not written to
+                unlock_run_dir(hydra_dir, remove_if_empty=True)
         lock_run_dir(run_dir, "choose another hydra.run.dir")  # the one writer of the run directory
-        s = train(cfg, run_dir)
-    except (MazeConfigError, ValueError, FileNotFoundError, RunDirBusyError) as exc:
+        if resume:
+            cfg = resume_config(Path(run_dir), overrides, cfg)
+        s = train(cfg, run_dir, resume=resume)
+    except (MazeConfigError, ValueError, FileNotFoundError, RunDirBusyError, TrainingStateError) as exc:
         print(f"drs-maze: error: {exc}", file=sys.stderr)
         if cfg.phase != "report":  # the refused run leaves the directory as it was (no Hydra record over a run's)
-            discard_refused_record(current_record(run_dir))
+            discard_refused_record(record, resume=resume, locked=not resume)
             unlock_run_dir(run_dir, remove_if_empty=True)
         sys.exit(2)
     if s.get("interrupted"):
         print(
-            f"drs-maze: interrupted at {s['frames']} env steps; a maze run keeps no training state: run it again "
-            "(overwrite=true)",
+            f"drs-maze: interrupted at {s['frames']} env steps; the training state is saved: continue with "
+            f"drs-maze resume={run_dir}",
             file=sys.stderr,
         )
         sys.exit(128 + int(s.get("signal", 2)))

@@ -68,6 +68,9 @@ def _check_memmap_dir(path: Path) -> None:
 
 
 def _filled(rb: ReplayBuffer):
+    """The filled slots of ``rb``'s storage, oldest first, in the layout ``extend`` takes: a storage with a time
+    dimension (``LazyTensorStorage(ndim=2)``, which holds ``(T, envs)`` and is extended with ``(envs, T)``) is cut along
+    time and transposed back."""
     if hasattr(rb, "snapshot_parts"):  # StageBuffers: one FIFO ring per stage
         return rb.snapshot_parts()
     storage = rb.storage
@@ -75,10 +78,13 @@ def _filled(rb: ReplayBuffer):
     if n == 0:
         return []
     data = storage._storage  # the TensorDict behind LazyTensorStorage / LazyMemmapStorage
-    cursor = int(getattr(rb._writer, "_cursor", n)) % storage.max_size
-    if n < storage.max_size or cursor == 0:
-        return [data[:n]]
-    return [data[cursor:], data[:cursor]]  # full and wrapped: oldest first
+    rows = data.shape[0]  # slots along the storage's first dimension (time, for ndim=2)
+    filled = n // (data[0].numel() if storage.ndim > 1 else 1)
+    cursor = int(getattr(rb._writer, "_cursor", filled)) % rows
+    parts = [data[:filled]] if filled < rows or cursor == 0 else [data[cursor:], data[:cursor]]  # wrapped: oldest first
+    if storage.ndim > 1:
+        parts = [p.transpose(0, 1).contiguous() for p in parts]
+    return parts
 
 
 def buffer_bytes(rb: ReplayBuffer) -> int:
@@ -119,7 +125,11 @@ def load_buffer(rb: ReplayBuffer, path: str | Path) -> dict:
             f"the saved buffer holds {meta['len']} transitions, more than this buffer's capacity {rb.storage.max_size}"
         )
     for i in range(meta["parts"]):
-        rb.extend(load_memmap_checked(path / f"part{i}"))  # copied page by page from the memory map
+        part = load_memmap_checked(path / f"part{i}")  # copied page by page from the memory map
+        if hasattr(rb, "snapshot_parts"):
+            rb.extend(part)  # StageBuffers files each transition by its stage
+        else:  # the stored form: past the buffer's inverse transforms (n-step windows were formed when it was stored)
+            rb._extend(part)
     if (path / "sampler.pt").is_file():
         rb._sampler.load_state_dict(torch_load(path / "sampler.pt", "replay sampler state"))
     return meta

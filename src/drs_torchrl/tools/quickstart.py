@@ -12,7 +12,8 @@ On the paper's navigation family (the three-room maze of ``drs-maze``, Appendix 
 Runs go ``jobs`` at a time (the baselines need no phase 1, so they start at once), each a
 ``drs-maze`` process with one torch thread, logging into ``<out>/logs/``. The console shows one
 progress bar per running run. Re-running the same command continues: finished runs are kept and
-unfinished ones start again (a maze run takes minutes and keeps no training state).
+unfinished ones start again (a maze run takes minutes; starting it again, rather than resuming its saved state,
+keeps its result the uninterrupted run's).
 SIGINT/SIGTERM stop the runs and exit 130/143. (``drs-study`` schedules the resumable SAC runs;
 this is its small cousin for a fixed four-run plan with live progress and a summary.)
 """
@@ -114,7 +115,7 @@ def finished(run_dir: Path) -> bool:
 
 
 def remove_run(run_dir: Path) -> None:
-    """Delete a run's folder (an unfinished maze run keeps no state), unless a process still writes it: a run left
+    """Delete a run's folder (an unfinished run is started again, not resumed), unless a process still writes it: a run left
     behind by a quickstart that was killed outright, which the run's own lock names."""
     if not run_dir.exists():
         return
@@ -271,7 +272,7 @@ def run_jobs(jobs: list[Job], out: Path, n_parallel: int, progress: Progress, qu
                     break
                 if not all(finished(out / n) for n in job.needs):
                     continue
-                remove_run(out / job.name)  # an unfinished run keeps no state: start again
+                remove_run(out / job.name)  # an unfinished run starts again: its result is then the uninterrupted one's
                 log = open(out / "logs" / f"{job.name}.log", "a")
                 cmd = [*exe, *job.args, f"hydra.run.dir={out / job.name}"]
                 log.write(f"# {time.strftime('%Y-%m-%d %H:%M:%S')} {' '.join(cmd)}\n")

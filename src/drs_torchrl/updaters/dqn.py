@@ -129,8 +129,8 @@ class DQNUpdater(Updater):
         return TensorDict({"dqn_loss": out["loss"].detach()}, []), rewards.detach()
 
     def state_dict(self) -> dict[str, Any]:
-        """The agent's state. Not the n-step windows the replay buffer's transform holds back at a batch's end:
-        no run resumes a DQN agent yet (a maze run keeps no training state), and one that did would lose them."""
+        """The agent's state. Not the n-step windows the replay buffer's transform holds back at a batch's end: they
+        belong to the episodes in flight, which a resumed run does not continue (it starts fresh ones)."""
         return {
             "loss": self.loss.state_dict(),
             "optimizers": {"dqn": self.optimizer.state_dict()},
