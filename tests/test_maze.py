@@ -806,7 +806,7 @@ def test_a_refused_drs_maze_keeps_the_runs_hydra_record_and_a_replacing_one_take
     assert p.returncode == 2 and "total_frames must be > 0" in p.stderr and not (tmp_path / "new").exists()
     p = maze("phase=reuse", "reward.name=sparse", "overwrite=true", f"hydra.run.dir={run}", *TINY)
     assert p.returncode == 0, p.stderr[-2000:]
-    assert (run / ".hydra" / "config.yaml").read_text().startswith("phase: reuse")  # the new run's record, in place
+    assert "\nphase: reuse\n" in (run / ".hydra" / "config.yaml").read_text()  # the new run's record, in place
     assert not list(run.glob(".hydra-*")) and "old" not in (run / "summary.json").read_text()
     busy = tmp_path / "busy"  # a directory another process writes: no record of this refused run is left in it
     holder = subprocess.Popen(

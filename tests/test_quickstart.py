@@ -45,6 +45,7 @@ def test_quickstart_learns_reuses_summarises_and_continues_after_an_interrupt(tm
         _, err = proc.communicate(timeout=120)
         assert proc.returncode == 130, err
         assert "Run the same command again to continue" in err
+        assert not list(out.glob("*/checkpoints")), "a stopped run starts again: it saves no training state"
     else:  # a machine fast enough to end it all within the half-second poll: a finished quickstart
         _, err = proc.communicate(timeout=60)
         assert proc.returncode == 0, err

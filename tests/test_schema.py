@@ -114,11 +114,24 @@ def test_an_on_policy_algorithm_takes_no_random_warm_up():
     validate_config(composed("learn", "algo=sac_cpu", "algo.learning_starts=1000"), "learn")
 
 
-def test_dqn_is_the_mazes_algo_node_and_is_refused_on_continuous_actions():
-    """conf/algo/dqn.yaml is the maze's `dqn` node (relative links resolve there); drs-learn refuses it elsewhere."""
+def test_the_mazes_agents_are_the_algo_nodes_and_dqn_is_refused_on_continuous_actions():
+    """conf/algo/dqn.yaml and ppo.yaml are the maze's `dqn` and `ppo` nodes (relative links resolve there); drs-learn
+    refuses DQN elsewhere."""
     maze = composed("maze", "dqn.lr=0.0005", "dqn.gamma=0.9")
     assert maze.dqn.name == "dqn" and maze.dqn.updater.optim.lr == 0.0005 and maze.dqn.updater.gamma == 0.9
     assert maze.dqn.updater.target_update.value_network_update_interval == 100
+    # conf/algo/ppo.yaml at ppo, the maze's values on top; the same file as drs-learn's algo=ppo
+    maze = composed("maze", "agent=ppo", "ppo.lr=0.002")
+    assert maze.ppo.updater.gamma == 0.99 and maze.ppo.updater.optim.lr == 0.002 and maze.ppo.updater.hidden == [64, 64]
+    assert maze.ppo.updater.policy_in_keys == ["observation"] and maze.ppo.updater.entropy_coeff == 0.01
+    learn = composed("learn", "algo=ppo", "algo.lr=0.002")
+    assert (
+        learn.algo.updater.gamma == 0.8
+        and learn.algo.updater.optim.lr == 0.002
+        and learn.algo.collector.frames_per_batch == 1000
+    )
+    with pytest.raises(MazeConfigError, match="the maze's PPO runs in fp32"):
+        validate(composed("maze", "agent=ppo", "ppo.precision=bf16"))
     with pytest.raises(ConfigError, match=r"^algo=dqn acts on discrete actions: it runs the maze .*algo=sac_cpu"):
         validate_config(composed("learn", "algo=dqn"), "learn")
 

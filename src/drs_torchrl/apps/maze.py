@@ -176,6 +176,10 @@ def validate(cfg: DictConfig) -> None:
         (cfg.map is None or cfg.map in GATES, f"map must be null or one of {sorted(GATES)}, got {cfg.map!r}"),
         (cfg.get("agent", "dqn") in ("dqn", "ppo"), f"agent must be dqn or ppo, got {cfg.get('agent')!r}"),
         (
+            cfg.ppo.get("precision", "fp32") == "fp32",  # conf/algo/ppo.yaml's setting; the maze's agents run fp32
+            f"the maze's PPO runs in fp32 (its networks are 64 wide): leave ppo.precision=fp32, got {cfg.ppo.precision}",
+        ),
+        (
             algo_config(cfg).frames_per_batch % cfg.num_envs == 0,
             f"{cfg.get('agent', 'dqn')}.frames_per_batch ({algo_config(cfg).frames_per_batch}) must be a multiple of "
             f"num_envs ({cfg.num_envs})",
@@ -407,7 +411,7 @@ def algo_config(cfg: DictConfig) -> DictConfig:
 
 def make_updater(cfg: DictConfig, env, drs, learn: bool):
     """The run's :class:`~drs_torchrl.updaters.base.Updater`: DQN (the paper's maze agent) or PPO."""
-    if cfg.get("agent", "dqn") == "ppo":  # conf/maze.yaml's ppo.updater, built as drs-learn builds conf/algo/ppo.yaml's
+    if cfg.get("agent", "dqn") == "ppo":  # conf/algo/ppo.yaml's updater at ppo, built as drs-learn builds it
         # phase 1: the batch's reward from the discriminator of the moment (the env's is the collection-time one)
         scale = float(cfg.ppo.get("reward_scale", 1.0))
         return instantiate(cfg.ppo.updater)(
@@ -533,8 +537,8 @@ def train(cfg: DictConfig, run_dir: str | os.PathLike, resume: bool = False) -> 
 
     def save() -> dict[str, str]:
         policy = updater.policy_checkpoint()["qnet"] if not ppo else updater.actor.state_dict()
-        if progress.frames < int(cfg.total_frames):  # stopped by a signal before the budget: what a resume needs
-            state.save(policy)
+        if progress.frames < int(cfg.total_frames) and cfg.get("save_state", True):  # stopped by a signal early
+            state.save(policy)  # what a resume needs
         torch.save(policy, run_dir / "policy.pt")
         return {"policy": str(run_dir / "policy.pt")}
 
@@ -813,9 +817,10 @@ def main(cfg: DictConfig) -> None:
             unlock_run_dir(run_dir, remove_if_empty=True)
         sys.exit(2)
     if s.get("interrupted"):
+        saved = f"the training state is saved: continue with drs-maze resume={run_dir}"
         print(
-            f"drs-maze: interrupted at {s['frames']} env steps; the training state is saved: continue with "
-            f"drs-maze resume={run_dir}",
+            f"drs-maze: interrupted at {s['frames']} env steps; "
+            + (saved if cfg.get("save_state", True) else "no training state saved (save_state=false)"),
             file=sys.stderr,
         )
         sys.exit(128 + int(s.get("signal", 2)))

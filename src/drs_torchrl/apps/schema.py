@@ -196,6 +196,7 @@ class MazeSchema:
     total_frames: int = setting(gt=0, example=200000)
     seed: int = setting(ge=0, example=0, hint="(it seeds numpy, torch and the simulator)")
     overwrite: bool = setting(example=True)
+    save_state: bool = setting(example=False)
     num_threads: int = setting(gt=0, example=1)
     num_envs: int = setting(gt=0, example=32)
     max_steps: int = setting(gt=0, example=200)

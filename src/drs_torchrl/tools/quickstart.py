@@ -274,7 +274,8 @@ def run_jobs(jobs: list[Job], out: Path, n_parallel: int, progress: Progress, qu
                     continue
                 remove_run(out / job.name)  # an unfinished run starts again: its result is then the uninterrupted one's
                 log = open(out / "logs" / f"{job.name}.log", "a")
-                cmd = [*exe, *job.args, f"hydra.run.dir={out / job.name}"]
+                # an unfinished run starts again (above), so a stopped one need not write its training state
+                cmd = [*exe, *job.args, "save_state=false", f"hydra.run.dir={out / job.name}"]
                 log.write(f"# {time.strftime('%Y-%m-%d %H:%M:%S')} {' '.join(cmd)}\n")
                 log.flush()
                 progress.start(job)
