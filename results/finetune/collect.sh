@@ -6,24 +6,12 @@
 set -euo pipefail
 main=$(cd "$(dirname "$0")/../.." && pwd)
 wt=$(cd "${1:-$main/../ft-wt}" && pwd)
-finished() {
-  "$main/.venv/bin/python" -c 'import sys, pathlib
-from drs_torchrl.tools.study import run_state
-sys.exit(run_state(pathlib.Path(sys.argv[1])) != "finished")' "$1"
-}
+source "$main/results/keep_finished.sh"
 for s in calibration stack_cube place_sphere; do
   rec=results/finetune/$s
   [ -f "$wt/$rec/study.yaml" ] || continue
   (cd "$wt" && PYTHONPATH="$wt/src" .venv/bin/drs-study "$rec/study.yaml" --report "$rec" > /dev/null)
-  for d in "$wt/$rec/run_files"/*/; do
-    [ -d "$d" ] || continue
-    n=$(basename "$d")
-    if finished "$d"; then
-      mkdir -p "$main/$rec/run_files/$n" && cp -r "$d". "$main/$rec/run_files/$n/"
-    else
-      rm -rf "$d"; echo "$s/$n: not finished, left out"
-    fi
-  done
+  keep_finished "$main" "$wt" "$rec" "$s"
   cp "$wt/$rec/status.md" "$main/$rec/"
   if [ "$s" != calibration ]; then (cd "$main" && .venv/bin/python results/finetune/decide.py "$rec" > /dev/null); fi
   echo "$s: $(ls "$main/$rec/run_files" 2>/dev/null | wc -l) finished runs in the record"
