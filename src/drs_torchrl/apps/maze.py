@@ -32,8 +32,8 @@ Choices the paper leaves open, or where this script departs from it (all in ``co
 It is a DQN script in the shape of TorchRL's ``sota-implementations``: the maze's pieces come from
 :mod:`drs_torchrl.tasks.maze` (the env with its stage label and reward slot, the shortest-path demonstrations, the
 (s, a) episodes for the stage buffers, greedy evaluation), the agent from ``conf/algo/dqn.yaml`` (placed at ``dqn``;
-:func:`~drs_torchrl.updaters.dqn.make_dqn_updater`) or ``conf/maze.yaml``'s ``ppo.updater``
-(:func:`~drs_torchrl.updaters.ppo.make_ppo_updater`), the reward from :func:`make_reward`, and one loop in
+:func:`~drs_torchrl.updaters.dqn.make_dqn_updater`) or ``conf/algo/ppo.yaml`` (placed at ``ppo`` with the maze's
+values; :func:`~drs_torchrl.updaters.ppo.make_ppo_updater`), the reward from :func:`make_reward`, and one loop in
 :func:`train` (:func:`~drs_torchrl.loop.run_algorithm1`). DrS itself is the same reward-learning core as the
 SAC families' (:class:`~drs_torchrl.learners.DrSLearner`: stage buffers, ``DiscriminatorLoss``,
 demonstrations), and the run is logged through the same TorchRL loggers. The reward figure,
