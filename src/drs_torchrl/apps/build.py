@@ -25,11 +25,8 @@ from tqdm.auto import tqdm
 
 from drs_torchrl.runtime.checkpoint import (
     Checkpointer,
-    TrainingStateError,
     atomic_write_text,
     find_training_state,
-    rng_state,
-    set_rng_state,
 )
 from drs_torchrl.data.demo_mix import demo_replay_buffer, plan_demo_use, requested_sac_share
 from drs_torchrl.demos.store import demos_for_run
@@ -196,7 +193,6 @@ class Run:
             self.episodes = EpisodeWindow(int(cfg.logger.episode_window), family.num_stages, self.episode_reward)
             if resume:
                 self.load_training_state()
-                self.progress.resumed_from = self.frames
                 self.env.set_seed(int(cfg.seed) + 1 + self.frames)  # fresh episodes, not the first run's
             self._segment_from, self._segment_start = self.frames, time.perf_counter()  # this process's part of the run
             self.logger = make_logger(cfg.logger, self.run_dir, resume_step=self.progress.resumed_from)
@@ -318,25 +314,10 @@ class Run:
         return paths
 
     def _state_payload(self) -> dict:
-        """The training state apart from the buffers (``trainer.pt``)."""
-        u = self.updater.state_dict()
-        return {
-            "phase": self.phase,
-            "algo": self.updater.name,
-            "counters": {
-                "frames": self.frames,
-                "updates": u.pop("updates"),
-                "disc_updates": self.learner.updates if self.learner is not None else 0,
-                "owed_updates": u.pop("owed_updates"),
-                "last_eval_frames": self.progress.last_eval_frames,
-                "eval_streak": self.progress.eval_streak,
-                "segments": self.segments(),
-            },
-            **u,  # loss, optimizers (and whatever else the updater keeps)
-            "learner": self.learner.state_dict() if self.learner is not None else None,
-            "recent_episodes": list(self.episodes.recent),
-            "rng": rng_state(),
-        }
+        """The training state apart from the buffers (``trainer.pt``), with this run's processes so far."""
+        return self.checkpointer.loop_state(
+            self.phase, self.updater, self.progress, self.episodes, segments=self.segments()
+        )
 
     def segments(self) -> list[dict]:
         """The run's processes so far: the earlier ones (from the training state) and this one, up to now."""
@@ -348,27 +329,8 @@ class Run:
         return [*self.progress.segments, now]
 
     def load_training_state(self) -> None:
-        payload, state_dir = self.checkpointer.read_state(self.phase)
-        if "algo" not in payload or "learner" not in payload:  # written by the code before 0.1.0, never released
-            raise TrainingStateError(
-                f"{self.run_dir}'s training state predates drs-torchrl 0.1.0 (no algorithm or reward learner recorded) "
-                "and cannot be resumed: start a new run (its checkpoints/reward.pt and policy.pt still load)"
-            )
-        algo = payload["algo"]
-        if algo != self.updater.name:
-            raise TrainingStateError(
-                f"{self.run_dir}'s training state is {algo}'s, this run's algo trains {self.updater.name}"
-            )
-        c = payload["counters"]
-        self.progress.frames, self.progress.last_eval_frames = int(c["frames"]), int(c["last_eval_frames"])
-        self.progress.segments = list(c.get("segments", []))  # states written before segments were kept: none
-        self.progress.eval_streak = int(c.get("eval_streak", 0))  # states written before it was kept: none
-        known = ("format", "version", "phase", "algo", "counters", "learner", "recent_episodes", "rng")
-        state = {k: v for k, v in payload.items() if k not in known}
-        self.updater.load_state_dict({**state, "updates": c["updates"], "owed_updates": c["owed_updates"]})
-        self.checkpointer.restore_buffers(state_dir, payload["learner"])
-        self.episodes.recent.extend(tuple(e) for e in payload["recent_episodes"])
-        set_rng_state(payload["rng"])
+        counters = self.checkpointer.restore_loop_state(self.phase, self.updater, self.progress, self.episodes)
+        self.progress.segments = list(counters.get("segments", []))  # states written before segments were kept: none
 
     # --------------------------------------------------------------------- run
     @property

@@ -65,8 +65,6 @@ from drs_torchrl.runtime.checkpoint import (
     Checkpointer,
     TrainingStateError,
     find_training_state,
-    rng_state,
-    set_rng_state,
 )
 from drs_torchrl.runtime.provenance import code_version
 from drs_torchrl.envs.maze import ACTIONS, GATES, OBS_DIMS
@@ -593,45 +591,17 @@ class _MazeState:
         return Checkpointer(self.run_dir, self.buffers, self.learner)  # (makes checkpoints/ only when used)
 
     def save(self, policy) -> None:
-        u = self.updater.state_dict()
-        payload = {
-            "phase": self.phase,
-            "algo": self.updater.name,
-            "counters": {
-                "frames": self.progress.frames,
-                "updates": u.pop("updates"),
-                "owed_updates": u.pop("owed_updates"),
-                "disc_updates": self.learner.updates if self.learner is not None else 0,
-                "last_eval_frames": self.progress.last_eval_frames,
-                "wall_s": self.record.wall_s(),
-                "cpu_s": self.record.cpu_s(),
-            },
-            **u,
-            "learner": self.learner.state_dict() if self.learner is not None else None,
-            "recent_episodes": list(self.episodes.recent),
-            "rng": rng_state(),
-        }
         ck = self._checkpointer()
+        payload = ck.loop_state(
+            self.phase, self.updater, self.progress, self.episodes,
+            wall_s=self.record.wall_s(), cpu_s=self.record.cpu_s(),
+        )  # fmt: skip
         ck.check_room([policy], payload)
         ck.save_state(payload)
 
     def load(self) -> dict:
         """Restore everything from the newest complete state; returns the earlier processes' wall and CPU seconds."""
-        ck = self._checkpointer()
-        payload, state_dir = ck.read_state(self.phase)
-        if payload.get("algo") != self.updater.name:
-            raise TrainingStateError(
-                f"{self.run_dir}'s training state is {payload.get('algo')}'s, this run's agent is {self.updater.name}"
-            )
-        c = payload["counters"]
-        self.progress.frames, self.progress.last_eval_frames = int(c["frames"]), int(c["last_eval_frames"])
-        self.progress.resumed_from = self.progress.frames
-        known = ("format", "version", "phase", "algo", "counters", "learner", "recent_episodes", "rng")
-        state = {k: v for k, v in payload.items() if k not in known}
-        self.updater.load_state_dict({**state, "updates": c["updates"], "owed_updates": c["owed_updates"]})
-        ck.restore_buffers(state_dir, payload["learner"])
-        self.episodes.recent.extend(tuple(e) for e in payload["recent_episodes"])
-        set_rng_state(payload["rng"])
+        c = self._checkpointer().restore_loop_state(self.phase, self.updater, self.progress, self.episodes)
         return {"wall_s": float(c["wall_s"]), "cpu_s": float(c["cpu_s"])}
 
     def remove(self) -> None:

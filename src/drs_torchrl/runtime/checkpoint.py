@@ -191,6 +191,56 @@ class Checkpointer:
             )
         return payload, state_dir
 
+    # ------------------------------------------------------------------ the loop's state (drs-learn, drs-maze)
+    def loop_state(self, phase: str, updater, progress, episodes, **counters) -> dict:
+        """The training state apart from the buffers (``trainer.pt``): the updater's networks and optimisers, the
+        loop's counters (:class:`~drs_torchrl.loop.Progress` and the caller's ``counters``), the reward learner's state,
+        the recent episodes and the RNG states."""
+        u = updater.state_dict()
+        return {
+            "phase": phase,
+            "algo": updater.name,
+            "counters": {
+                "frames": progress.frames,
+                "updates": u.pop("updates"),
+                "disc_updates": self.learner.updates if self.learner is not None else 0,
+                "owed_updates": u.pop("owed_updates"),
+                "last_eval_frames": progress.last_eval_frames,
+                "eval_streak": progress.eval_streak,
+                **counters,
+            },
+            **u,  # loss, optimizers (and whatever else the updater keeps)
+            "learner": self.learner.state_dict() if self.learner is not None else None,
+            "recent_episodes": list(episodes.recent),
+            "rng": rng_state(),
+        }
+
+    def restore_loop_state(self, phase: str, updater, progress, episodes) -> dict:
+        """Everything :meth:`loop_state` and the buffers hold, back from the newest complete state into ``updater``,
+        ``progress``, ``episodes``, the learner and the RNGs; returns the saved counters."""
+        run_dir = self.dir.parent
+        payload, state_dir = self.read_state(phase)
+        if "algo" not in payload or "learner" not in payload:  # written by the code before 0.1.0, never released
+            raise TrainingStateError(
+                f"{run_dir}'s training state predates drs-torchrl 0.1.0 (no algorithm or reward learner recorded) "
+                "and cannot be resumed: start a new run (its checkpoints/reward.pt and policy.pt still load)"
+            )
+        if payload["algo"] != updater.name:
+            raise TrainingStateError(
+                f"{run_dir}'s training state is {payload['algo']}'s, this run trains {updater.name}"
+            )
+        c = payload["counters"]
+        progress.frames, progress.last_eval_frames = int(c["frames"]), int(c["last_eval_frames"])
+        progress.eval_streak = int(c.get("eval_streak", 0))  # states written before it was kept: none
+        progress.resumed_from = progress.frames
+        known = ("format", "version", "phase", "algo", "counters", "learner", "recent_episodes", "rng")
+        state = {k: v for k, v in payload.items() if k not in known}
+        updater.load_state_dict({**state, "updates": c["updates"], "owed_updates": c["owed_updates"]})
+        self.restore_buffers(state_dir, payload["learner"])
+        episodes.recent.extend(tuple(e) for e in payload["recent_episodes"])
+        set_rng_state(payload["rng"])
+        return c
+
     def restore_buffers(self, state_dir: Path, learner_state: dict | None) -> None:
         """The learner's state and every buffer from ``state_dir``; a damaged part raises :class:`TrainingStateError`."""
         try:
