@@ -346,6 +346,8 @@ def cases(work: Path, good_run: Path) -> list[Case]:
         Case("drs-maze into a directory holding a maze run", ["drs-maze", "hydra.run.dir={maze}"], run=maze_run),
         Case("drs-maze resume= of a finished maze run", ["drs-maze", "resume={maze}"], run=maze_run),
         Case("drs-learn algo=dqn on a continuous-action family", [*L, "algo=dqn"]),
+        Case("drs-maze with another family's env", ["drs-maze", "env=pick_cube", "hydra.run.dir={d}/m"]),
+        Case("a config group set to null", [*L, "algo=null"]),
         Case("drs-compare naming one run twice", ["drs-compare", "{good}", "{good}/", "--out", "{d}/cmp"]),
         Case("drs-study with two runs of the same settings", ["drs-study", str(work / "twin_study.yaml")]),
         Case("drs-study --jobs 0", ["drs-study", str(work / "typo_study.yaml"), "--jobs", "0"]),
