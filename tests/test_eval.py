@@ -9,7 +9,6 @@ import imageio.v3 as iio
 import pytest
 from budgets import tiny
 
-pytestmark = [pytest.mark.sim, pytest.mark.slow]
 
 BIN = Path(sys.executable).parent
 TINY = [*tiny(eval_episodes=0), "env.max_episode_steps=20"]
@@ -27,6 +26,8 @@ def trained(tmp_path_factory):
     return d
 
 
+@pytest.mark.sim
+@pytest.mark.slow
 def test_eval_reports_maniskill_metrics_on_the_held_out_split(trained):
     p = run("drs-eval", str(trained), "--episodes", "3", "--split", "test", cwd=trained)
     assert p.returncode == 0, p.stderr[-2000:]
@@ -41,6 +42,8 @@ def test_eval_reports_maniskill_metrics_on_the_held_out_split(trained):
     assert res["success_once"] == sum(r["success_once"] for r in res["rows"]) / 3
 
 
+@pytest.mark.sim
+@pytest.mark.slow
 def test_eval_records_one_mp4_frame_per_step(trained, tmp_path):
     p = run(
         "drs-eval",
@@ -61,6 +64,8 @@ def test_eval_records_one_mp4_frame_per_step(trained, tmp_path):
     assert frames[0].std() > 1  # a picture, not a blank frame
 
 
+@pytest.mark.sim
+@pytest.mark.slow
 def test_eval_episode_seed_fixes_each_episode_start(trained, tmp_path):
     """--episode-seed S: episode i starts from seed S+i, whatever the number of episodes before it."""
     rows = {}
@@ -89,6 +94,8 @@ def test_eval_episode_seed_fixes_each_episode_start(trained, tmp_path):
         (["--episode-seed", "-1"], "argument --episode-seed: must be >= 0, got -1"),
     ],
 )
+@pytest.mark.sim
+@pytest.mark.slow
 def test_eval_bad_input_is_one_line(trained, args, message):
     p = run("drs-eval", str(trained), *args, cwd=trained)
     assert p.returncode == 2 and message in p.stderr and "Traceback" not in p.stderr
@@ -99,6 +106,8 @@ def test_eval_refuses_a_directory_that_is_not_a_run(tmp_path):
     assert p.returncode == 2 and "not a drs-learn/drs-reuse run directory" in p.stderr
 
 
+@pytest.mark.sim
+@pytest.mark.slow
 def test_reward_episode_figure_is_drawn_from_a_real_episode(trained, tmp_path):
     out = tmp_path / "fig3.png"
     p = run("drs-plot", str(trained), "--reward-episode", "--tries", "2", "--out", str(out), cwd=trained)
@@ -107,6 +116,8 @@ def test_reward_episode_figure_is_drawn_from_a_real_episode(trained, tmp_path):
     assert img.shape[0] > 200 and img.shape[1] > 400 and img.std() > 5
 
 
+@pytest.mark.sim
+@pytest.mark.slow
 def test_eval_reads_a_committed_record(trained, tmp_path):
     """drs-study --report flattens a run into config.yaml, policy.pt and reward.pt side by side; drs-eval takes that too."""
     import shutil
@@ -120,6 +131,8 @@ def test_eval_reads_a_committed_record(trained, tmp_path):
     assert json.loads((rec / "eval_train.json").read_text())["rows"][0]["return"] < 0  # under the learned reward
 
 
+@pytest.mark.sim
+@pytest.mark.slow
 def test_reward_probe_reports_every_stage_with_a_rank_correlation(trained, tmp_path):
     """The probe reads discriminator k at the states of stage k: with each discriminator made a constant c_k (its
     last layer zero but the bias), every stage-k state's tanh(D_k) is tanh(c_k), and no other discriminator's."""
@@ -172,6 +185,8 @@ def test_reward_probe_reports_every_stage_with_a_rank_correlation(trained, tmp_p
     assert (tmp_path / "probe.png").stat().st_size > 1000 and "Spearman" in (tmp_path / "probe.md").read_text()
 
 
+@pytest.mark.sim
+@pytest.mark.slow
 def test_reward_probe_labels_stages_with_a_variant_override_that_reaches_the_env(trained, tmp_path):
     """--variant-override placed_thresh=... labels the stages as a reward learned at that threshold does."""
 
@@ -308,6 +323,8 @@ def _training_evaluations(tmp_path, *overrides):
     return starts
 
 
+@pytest.mark.sim
+@pytest.mark.slow
 def test_training_evaluations_replay_the_same_episodes_with_episode_seed(tmp_path):
     import torch
 

@@ -18,10 +18,12 @@ def test_factories_and_the_algo_updater_assemble_a_sac_update_on_a_family_env():
     with initialize_config_dir(config_dir=conf_dir(), version_base=None):
         cfg = compose("reuse", overrides=["env=turn_valve", "reward=semi_sparse", "algo.hidden=[16,16]"])
     family = family_from_config(cfg.env)
-    env, eval_env, kwargs = make_envs(cfg, family, reward_setup(cfg.reward, "reuse"), torch.device("cpu"))
+    env, eval_env, kwargs = make_envs(
+        cfg.env, family, reward_setup(cfg.reward, "reuse"), torch.device("cpu"), seed=cfg.seed
+    )
     try:
         assert kwargs["semi_sparse_reward"] and eval_env.batch_size == torch.Size([])
-        replay = make_replay_buffer(cfg, None, torch.device("cpu"))
+        replay = make_replay_buffer(cfg.algo.replay_buffer, None, torch.device("cpu"))
         updater = instantiate(cfg.algo.updater)(env, replay)  # SAC: actor, twin critics, SACLoss, optimisers
         replay.extend(env.rollout(8, updater.policy))  # outside no_grad: the env detaches the actions itself
         opts = updater.optimizers
@@ -33,6 +35,22 @@ def test_factories_and_the_algo_updater_assemble_a_sac_update_on_a_family_env():
     finally:
         env.close()
         eval_env.close()
+
+
+def learner_of(factories, cfg):
+    """``make_reward_learner`` as a run calls it (apps/build.py)."""
+    return factories.make_reward_learner(
+        cfg.reward,
+        family_from_config(cfg.env),
+        None,
+        split=cfg.env.split,
+        variant_overrides=None,
+        seed=cfg.seed,
+        reward_updates_per_update=cfg.algo.get("reward_updates_per_update"),
+        device="cpu",
+        precision="fp32",
+        step_fn=None,
+    )
 
 
 @pytest.mark.parametrize(
@@ -62,11 +80,11 @@ def test_reward_learner_steps_follow_the_algo_config(algo, batch, utd, disc_step
         for reward in learned:  # every learned reward of the registry (conf/reward/)
             cfg = compose("learn", overrides=[f"algo={algo}", f"reward={reward}"])
             assert "updates_per_sac_update" not in cfg.reward.disc, "the rate has one name, the algo config's"
-            factories.make_reward_learner(cfg, family_from_config(cfg.env), None, "cpu", "fp32", None)
-            got = (cfg.algo.batch_size, cfg.algo.utd, seen["updates_per_rl_update"], cfg.reward.disc.batch_size)
+            learner_of(factories, cfg)
+            got = (cfg.algo.batch_size, cfg.algo.utd, seen["reward_updates_per_update"], cfg.reward.disc.batch_size)
             assert got == (batch, utd, disc_steps, disc_batch), reward
         cfg = compose(
             "learn", overrides=[f"algo={algo}", "algo.reward_updates_per_update=3", "reward.disc.batch_size=64"]
         )
-        factories.make_reward_learner(cfg, family_from_config(cfg.env), None, "cpu", "fp32", None)
-        assert (seen["updates_per_rl_update"], cfg.reward.disc.batch_size) == (3, 64)
+        learner_of(factories, cfg)
+        assert (seen["reward_updates_per_update"], cfg.reward.disc.batch_size) == (3, 64)

@@ -236,14 +236,14 @@ def test_drs_learner_files_episodes_by_stage_and_separates_them(file_successes):
     "rate, expected", [(0.5, [0, 1, 0, 1, 0, 1]), (1.5, [1, 2, 1, 2, 1, 2]), (1, [1] * 6), (2, [2] * 6)]
 )
 def test_fractional_reward_learner_steps_carry_over_and_survive_a_checkpoint(rate, expected):
-    """``updates_per_rl_update`` may be fractional (issue 12's fewer-updates levers): 0.5 is one
+    """``reward_updates_per_update`` may be fractional (issue 12's fewer-updates levers): 0.5 is one
     discriminator step every second RL update, 1.5 one and two in turn; the remainder is saved with
     the learner, so a resumed run keeps the schedule."""
     torch.manual_seed(0)
     learner = DrSLearner(
         DrSReward(1, ["observation"], {"observation": D}, formula="rescaled"),
         batch_size=16,
-        updates_per_rl_update=rate,
+        reward_updates_per_update=rate,
         demos=[states(5, good=True).select("observation", "stage")],
     )
     g = torch.Generator().manual_seed(1)
@@ -255,7 +255,7 @@ def test_fractional_reward_learner_steps_carry_over_and_survive_a_checkpoint(rat
             learner = DrSLearner(
                 DrSReward(1, ["observation"], {"observation": D}, formula="rescaled"),
                 batch_size=16,
-                updates_per_rl_update=rate,
+                reward_updates_per_update=rate,
                 demos=[states(5, good=True).select("observation", "stage")],
             )
             learner.observe(None, [episode(6, success=i % 2 == 0, g=g) for i in range(4)])
@@ -266,4 +266,4 @@ def test_fractional_reward_learner_steps_carry_over_and_survive_a_checkpoint(rat
     assert steps == expected
     assert learner.updates == sum(expected)
     with pytest.raises(ValueError, match="must be > 0"):
-        DrSLearner(DrSReward(1, ["observation"], {"observation": D}), updates_per_rl_update=0)
+        DrSLearner(DrSReward(1, ["observation"], {"observation": D}), reward_updates_per_update=0)

@@ -15,7 +15,6 @@ import torch
 from omegaconf import OmegaConf
 from budgets import small, tiny
 
-pytestmark = [pytest.mark.sim, pytest.mark.slow]
 
 BIN = Path(sys.executable).parent
 TINY = [*small(frames=None, checkpoint_every=512, background=True), "+env.variant_overrides.goal_thresh=0.08"]
@@ -36,6 +35,8 @@ def _steps(path: Path):
     return [int(float(r["step"])) for r in csv.DictReader(path.open())]
 
 
+@pytest.mark.sim
+@pytest.mark.slow
 def test_sigkill_then_resume_continues_from_the_saved_step(tmp_path):
     env = dict(os.environ, PYTHONWARNINGS="ignore")
     run_dir = tmp_path / "run"
@@ -91,6 +92,8 @@ def test_sigkill_then_resume_continues_from_the_saved_step(tmp_path):
     assert (run_dir / ".hydra").is_dir() and list(run_dir.glob(".hydra-resume-*"))
 
 
+@pytest.mark.sim
+@pytest.mark.slow
 def test_sigterm_saves_state_and_resume_finishes(tmp_path):
     env = dict(os.environ, PYTHONWARNINGS="ignore")
     run_dir = tmp_path / "run"
@@ -129,6 +132,8 @@ def _digest(d: Path) -> dict:
     return {str(f.relative_to(d)): hashlib.sha256(f.read_bytes()).hexdigest() for f in d.rglob("*") if f.is_file()}
 
 
+@pytest.mark.sim
+@pytest.mark.slow
 def test_reuse_resumes_and_bad_resumes_leave_the_run_untouched(tmp_path, cli):
     env = dict(os.environ, PYTHONWARNINGS="ignore")
     run_dir = tmp_path / "reuse"
@@ -293,6 +298,8 @@ def test_resume_config_applies_value_overrides_and_new_variant_parameters(tmp_pa
         resume_config(tmp_path, "learn", ["typo_key=1"], composed=newer)
 
 
+@pytest.mark.sim
+@pytest.mark.slow
 def test_stop_at_success_ends_phase_1_as_finished_and_a_resume_can_ask_for_it(tmp_path):
     """``stop_at_success``: once the training success over a full episode window reaches it, the run
     ends with its final evaluation and saves, finished (not interrupted), short of total_frames; a run
@@ -335,6 +342,8 @@ def test_stop_at_success_ends_phase_1_as_finished_and_a_resume_can_ask_for_it(tm
     assert "stop_at_success=0 at" in p.stdout
 
 
+@pytest.mark.sim
+@pytest.mark.slow
 def test_eval_stop_at_success_ends_a_reuse_run_as_finished_at_the_evaluation_that_reached_it(tmp_path):
     """``eval.stop_at_success``: a run ends (finished, saved) at the evaluation that completes the streak, short of
     total_frames, and a study does not resume it. (Threshold 0 so that the first evaluation reaches it.)"""

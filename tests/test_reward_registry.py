@@ -95,7 +95,9 @@ def test_a_new_reward_is_one_yaml_file(tmp_path, monkeypatch):
     assert setup.semi_sparse and setup.frozen is None and not is_learned(static.reward)
     assert is_learned(learned.reward) and reward_setup(learned.reward, "learn").learned is None
     family = family_from_config(learned.env)
-    env, eval_env, _ = make_envs(learned, family, reward_setup(learned.reward, "learn"), torch.device("cpu"))
+    env, eval_env, _ = make_envs(
+        learned.env, family, reward_setup(learned.reward, "learn"), torch.device("cpu"), seed=learned.seed
+    )
     try:
         learner = new_reward_learner(
             learned.reward, family, env, {"family": family.name}, device="cpu", autocast=None, step_fn=plain_step

@@ -310,6 +310,6 @@ def test_a_maze_run_given_to_a_maniskill_command_is_named_as_one(app, tmp_path, 
         code = e.code
     assert code == 2
     err = capsys.readouterr().err
-    assert f"{maze} is a drs-maze run (the maze's own DQN app), not a drs-learn/drs-reuse run" in err
+    assert f"{maze} is a drs-maze run (the maze family's app, conf/maze.yaml), not a drs-learn/drs-reuse run" in err
     assert f"drs-maze phase=report report.root={tmp_path}" in err and err.count("\n") == 1
     assert {p.name: p.read_bytes() for p in maze.iterdir() if p.is_file()} == before

@@ -234,10 +234,10 @@ def new_reward_learner(
     autocast,
     step_fn,
     demos=None,
-    updates_per_rl_update: float = 1.0,
+    reward_updates_per_update: float = 1.0,
 ):
     """The phase-1 learner of ``reward=<name>`` (``cfg`` is the ``reward`` config group): its entry's ``learner``.
-    ``updates_per_rl_update``: its steps per RL update, the algorithm's ``algo.reward_updates_per_update``."""
+    ``reward_updates_per_update``: its steps per RL update, the algorithm's ``algo.reward_updates_per_update``."""
     return instantiate(reward_entry(cfg).learner)(
         cfg,
         family,
@@ -247,11 +247,11 @@ def new_reward_learner(
         autocast=autocast,
         step_fn=step_fn,
         demos=demos,
-        updates_per_rl_update=updates_per_rl_update,
+        reward_updates_per_update=reward_updates_per_update,
     )
 
 
-def _common(cfg, device, autocast, step_fn, updates_per_rl_update) -> dict:
+def _common(cfg, device, autocast, step_fn, reward_updates_per_update) -> dict:
     d = cfg.disc
     return dict(
         lr=float(d.lr),
@@ -259,12 +259,21 @@ def _common(cfg, device, autocast, step_fn, updates_per_rl_update) -> dict:
         device=device,
         autocast=autocast,
         step_fn=step_fn,
-        updates_per_rl_update=float(updates_per_rl_update),
+        reward_updates_per_update=float(reward_updates_per_update),
     )
 
 
 def drs_learner(
-    cfg, family: TaskFamily, env, metadata: dict, *, device, autocast, step_fn, demos=None, updates_per_rl_update=1.0
+    cfg,
+    family: TaskFamily,
+    env,
+    metadata: dict,
+    *,
+    device,
+    autocast,
+    step_fn,
+    demos=None,
+    reward_updates_per_update=1.0,
 ):
     """DrS (Algorithm 1): stage buffers and one discriminator per stage, training a fresh :class:`DrSReward`."""
     from drs_torchrl.learners import DrSLearner
@@ -279,7 +288,7 @@ def drs_learner(
         window=int(d.window),
         latch=bool(d.get("latch", True)),
         demos=demos,
-        **_common(cfg, device, autocast, step_fn, updates_per_rl_update),
+        **_common(cfg, device, autocast, step_fn, reward_updates_per_update),
     )
 
 
@@ -291,22 +300,40 @@ def _classifier(cfg, family, env, metadata, device, autocast, step_fn, rate) -> 
 
 
 def vice_raq_learner(
-    cfg, family: TaskFamily, env, metadata: dict, *, device, autocast, step_fn, demos=None, updates_per_rl_update=1.0
+    cfg,
+    family: TaskFamily,
+    env,
+    metadata: dict,
+    *,
+    device,
+    autocast,
+    step_fn,
+    demos=None,
+    reward_updates_per_update=1.0,
 ):
     """VICE-RAQ with an oracle (Sec. 5.2): success states vs every other visited state, online."""
     from drs_torchrl.learners import SuccessClassifierLearner
 
-    reward, common = _classifier(cfg, family, env, metadata, device, autocast, step_fn, updates_per_rl_update)
+    reward, common = _classifier(cfg, family, env, metadata, device, autocast, step_fn, reward_updates_per_update)
     return SuccessClassifierLearner(reward, success_key=family.stage_keys[-1], capacity=int(cfg.buffer_size), **common)
 
 
 def oril_learner(
-    cfg, family: TaskFamily, env, metadata: dict, *, device, autocast, step_fn, demos=None, updates_per_rl_update=1.0
+    cfg,
+    family: TaskFamily,
+    env,
+    metadata: dict,
+    *,
+    device,
+    autocast,
+    step_fn,
+    demos=None,
+    reward_updates_per_update=1.0,
 ):
     """ORIL (Sec. 5.2): demonstration states vs random-policy states, trained offline before RL."""
     from drs_torchrl.learners import OfflineClassifierLearner
 
-    reward, common = _classifier(cfg, family, env, metadata, device, autocast, step_fn, updates_per_rl_update)
+    reward, common = _classifier(cfg, family, env, metadata, device, autocast, step_fn, reward_updates_per_update)
     return OfflineClassifierLearner(
         reward,
         demos=demos,
@@ -318,10 +345,19 @@ def oril_learner(
 
 
 def gail_learner(
-    cfg, family: TaskFamily, env, metadata: dict, *, device, autocast, step_fn, demos=None, updates_per_rl_update=1.0
+    cfg,
+    family: TaskFamily,
+    env,
+    metadata: dict,
+    *,
+    device,
+    autocast,
+    step_fn,
+    demos=None,
+    reward_updates_per_update=1.0,
 ):
     """GAIL (Appendix F.2): demonstrations vs the agent's transitions, TorchRL's ``GAILLoss``."""
     from drs_torchrl.learners import DemoDiscriminatorLearner
 
-    reward, common = _classifier(cfg, family, env, metadata, device, autocast, step_fn, updates_per_rl_update)
+    reward, common = _classifier(cfg, family, env, metadata, device, autocast, step_fn, reward_updates_per_update)
     return DemoDiscriminatorLearner(reward, demos=demos, grad_penalty=bool(cfg.get("grad_penalty", False)), **common)

@@ -45,6 +45,7 @@ from drs_torchrl.apps.factories import (
     make_logger,
     make_replay_buffer,
     make_reward_learner,
+    variant_overrides,
 )
 from drs_torchrl.apps.validation import collector_for_device, collects_in_background, validate_config
 from drs_torchrl.transforms.classifier_reward import ClassifierReward
@@ -119,7 +120,9 @@ class Run:
             if TASK_OBSERVATION_KEY in reads and not cfg.env.get("task_observation"):
                 self.resolved["env.task_observation"] = True  # the reward reads the task state: the env writes it
             self.family = family = family_from_config(cfg.env, task_observation=self.setting("env.task_observation"))
-            self.env, self.eval_env, self._env_kwargs = make_envs(cfg, family, reward, device)
+            self.env, self.eval_env, self._env_kwargs = make_envs(
+                cfg.env, family, reward, device, seed=int(cfg.seed), eval_split=cfg.eval.get("split")
+            )
 
             # phase 1 of a learned reward: the demonstrations, how they are used, and the reward learner
             learns = phase == "learn" and is_learned(cfg.reward)
@@ -145,12 +148,16 @@ class Run:
             self.learner = None
             if learns:
                 self.learner = make_reward_learner(
-                    cfg,
+                    cfg.reward,
                     family,
                     self.env,
-                    device,
-                    self.precision,
-                    functools.partial(backward_and_step, scaler),
+                    split=cfg.env.split,
+                    variant_overrides=variant_overrides(cfg.env),
+                    seed=int(cfg.seed),
+                    reward_updates_per_update=float(cfg.algo.get("reward_updates_per_update") or 1),
+                    device=device,
+                    precision=self.precision,
+                    step_fn=functools.partial(backward_and_step, scaler),
                     demos=demos if use.stage_buffers and not (resume and reward.name == "drs") else None,
                 )
                 reward.learned = self.learner.reward
@@ -171,7 +178,9 @@ class Run:
                 demo_batch = max(1, round(use.sac_share * int(cfg.algo.batch_size)))
             replay = None
             if cfg.algo.get("replay_buffer") is not None:
-                replay = make_replay_buffer(cfg, self.learned, device, int(cfg.algo.batch_size) - demo_batch)
+                replay = make_replay_buffer(
+                    cfg.algo.replay_buffer, self.learned, device, int(cfg.algo.batch_size) - demo_batch
+                )
                 if self.learner is not None:
                     self.learner.attach(replay)  # GAIL draws the agent's transitions from it
             self.updater = instantiate(cfg.algo.updater)(  # e.g. updaters.sac.make_sac_updater (conf/algo/)

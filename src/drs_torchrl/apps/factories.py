@@ -33,26 +33,39 @@ __all__ = [
 ]
 
 
-def make_envs(cfg: DictConfig, family: TaskFamily, reward: RewardSetup, device: torch.device):
-    """The training env (``env.split``) and a one-env evaluation env (``eval.split``), each with the
-    family's stage labelling and the reward in its slot: the env's own reward (sparse, semi-sparse,
-    dense), or a frozen learned reward appended as a transform (phase 2). Returns ``(env, eval_env,
+def variant_overrides(node: DictConfig) -> dict | None:
+    """The ``env`` node's ``variant_overrides`` as a plain dict (None when empty)."""
+    return OmegaConf.to_container(node.variant_overrides) if node.get("variant_overrides") else None
+
+
+def make_envs(
+    node: DictConfig,
+    family: TaskFamily,
+    reward: RewardSetup,
+    device: torch.device,
+    *,
+    seed: int,
+    eval_split: str | None = None,
+):
+    """The training env (the ``env`` node's ``split``) and a one-env evaluation env (``eval_split``, else the same
+    split), each with the family's stage labelling and the reward in its slot: the env's own reward (sparse,
+    semi-sparse, dense), or a frozen learned reward appended as a transform (phase 2). Returns ``(env, eval_env,
     env_kwargs)``; ``env_kwargs`` rebuilds the same env elsewhere (a collector's worker process)."""
     env_kwargs = dict(
-        variant_overrides=OmegaConf.to_container(cfg.env.variant_overrides) if cfg.env.variant_overrides else None,
+        variant_overrides=variant_overrides(node),
         reward_mode=reward.env_reward_mode,
         semi_sparse_reward=reward.semi_sparse,
         semi_sparse_offset=reward.semi_sparse_offset,
         reward_offset=dense_offset(reward, family),
-        sim_backend=cfg.env.sim_backend,
-        num_envs=cfg.env.num_envs,
-        cpu_batching=cfg.env.get("cpu_batching", "serial"),
-        control_mode=cfg.env.control_mode,
-        max_episode_steps=cfg.env.max_episode_steps,
+        sim_backend=node.sim_backend,
+        num_envs=node.num_envs,
+        cpu_batching=node.get("cpu_batching", "serial"),
+        control_mode=node.control_mode,
+        max_episode_steps=node.max_episode_steps,
     )
-    env = make_family_env(family, cfg.env.split, seed=int(cfg.seed), **env_kwargs)
+    env = make_family_env(family, node.split, seed=int(seed), **env_kwargs)
     eval_env = make_family_env(
-        family, cfg.eval.get("split") or cfg.env.split, seed=int(cfg.seed) + 10_000, **{**env_kwargs, "num_envs": 1}
+        family, eval_split or node.split, seed=int(seed) + 10_000, **{**env_kwargs, "num_envs": 1}
     )  # evaluation: one episode at a time
     for e in (env, eval_env):
         if e.device != device:  # e.g. CPU simulation feeding a CUDA learner: data moves at the env edge
@@ -71,33 +84,42 @@ def make_envs(cfg: DictConfig, family: TaskFamily, reward: RewardSetup, device: 
     return env, eval_env, env_kwargs
 
 
-def make_replay_buffer(cfg: DictConfig, transform, device: torch.device, batch_size: int | None = None):
-    """``algo.replay_buffer`` on ``device``; ``transform`` (a learned reward, or None) recomputes
+def make_replay_buffer(node: DictConfig, transform, device: torch.device, batch_size: int | None = None):
+    """The ``algo.replay_buffer`` node's buffer on ``device``; ``transform`` (a learned reward, or None) recomputes
     ``("next", "reward")`` from the current reward modules at every sample (Algorithm 1, line 18).
-    ``batch_size`` replaces the config's (the agent's part of a batch that also holds demonstrations)."""
+    ``batch_size`` replaces the node's (the agent's part of a batch that also holds demonstrations)."""
     extra = {} if batch_size is None else {"batch_size": int(batch_size)}
-    return instantiate(cfg.algo.replay_buffer, storage={"device": str(device)}, **extra)(transform=transform)
+    return instantiate(node, storage={"device": str(device)}, **extra)(transform=transform)
 
 
 def make_reward_learner(
-    cfg: DictConfig, family: TaskFamily, env, device: torch.device, precision: str, step_fn, demos: list | None = None
+    node: DictConfig,
+    family: TaskFamily,
+    env,
+    *,
+    split: str,
+    variant_overrides: dict | None,
+    seed: int,
+    reward_updates_per_update: float,
+    device: torch.device,
+    precision: str,
+    step_fn,
+    demos: list | None = None,
 ):
-    """The phase-1 reward learner of ``reward=<name>`` (:mod:`drs_torchrl.learners`), its checkpoint
-    metadata describing the training split, stepping ``algo.reward_updates_per_update`` times per RL update.
-    ``step_fn(loss, optimizers)``: backward and steps."""
-    split_args = family.env_args(
-        cfg.env.split, OmegaConf.to_container(cfg.env.variant_overrides) if cfg.env.variant_overrides else None
-    )
+    """The phase-1 reward learner of the ``reward`` node (:mod:`drs_torchrl.learners`), its checkpoint metadata
+    describing the training ``split``, stepping ``reward_updates_per_update`` times per RL update (the algorithm's
+    ``algo.reward_updates_per_update``). ``step_fn(loss, optimizers)``: backward and steps."""
+    split_args = family.env_args(split, variant_overrides)
     meta: dict[str, Any] = {
         "family": family.name,
         "env_id": split_args["env_id"],
-        "variant": cfg.env.split,
+        "variant": split,
         "variant_kwargs": split_args["env_kwargs"],
         "stage_keys": list(family.stage_keys),
-        "seed": int(cfg.seed),
+        "seed": int(seed),
     }
     return new_reward_learner(
-        cfg.reward,
+        node,
         family,
         env,
         meta,
@@ -105,7 +127,7 @@ def make_reward_learner(
         autocast=functools.partial(autocast, precision, device),
         step_fn=step_fn,
         demos=demos,
-        updates_per_rl_update=float(cfg.algo.get("reward_updates_per_update") or 1),
+        reward_updates_per_update=float(reward_updates_per_update or 1),
     )
 
 

@@ -55,7 +55,7 @@ class RewardLearner:
         self._autocast = autocast or contextlib.nullcontext
         self._step_fn = step_fn
         self.updates = 0
-        self.updates_per_rl_update = 1.0
+        self.reward_updates_per_update = 1.0
         self._owed_steps = 0.0
 
     # ------------------------------------------------------------------ the loop's calls
@@ -111,16 +111,16 @@ class RewardLearner:
         """Read what :meth:`dump_buffers` wrote."""
 
     # ------------------------------------------------------------------ helpers
-    def _set_steps_per_rl_update(self, value: float) -> None:
+    def _set_reward_updates_per_update(self, value: float) -> None:
         value = float(value)
         if not value > 0:
             raise ValueError(f"reward-learner steps per RL update must be > 0, got {value}")
-        self.updates_per_rl_update = value
+        self.reward_updates_per_update = value
 
     def _steps_due(self) -> int:
-        """The learner's steps for this RL update. ``updates_per_rl_update`` may be fractional (0.5: one
+        """The learner's steps for this RL update. ``reward_updates_per_update`` may be fractional (0.5: one
         step every second RL update; 1.5: one and two in turn); the remainder carries to the next call."""
-        self._owed_steps += self.updates_per_rl_update
+        self._owed_steps += self.reward_updates_per_update
         due = int(self._owed_steps + 1e-9)
         self._owed_steps -= due
         return due

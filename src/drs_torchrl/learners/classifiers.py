@@ -51,13 +51,13 @@ class _TwoSetClassifier(RewardLearner):
         batch_size: int = 256,
         lr: float = 3e-4,
         fused: bool = False,
-        updates_per_rl_update: float = 1,
+        reward_updates_per_update: float = 1,
         **kw,
     ):
         super().__init__(**kw)
         self.reward = reward
         self.batch_size = int(batch_size)
-        self._set_steps_per_rl_update(updates_per_rl_update)
+        self._set_reward_updates_per_update(reward_updates_per_update)
         self.positives, self.negatives = _buffer(capacity), _buffer(capacity)
         self.optim = torch.optim.Adam(reward.classifier.parameters(), lr=float(lr), fused=bool(fused))
 
@@ -215,7 +215,7 @@ class DemoDiscriminatorLearner(RewardLearner):
         batch_size: int = 256,
         lr: float = 3e-4,
         fused: bool = False,
-        updates_per_rl_update: float = 1,
+        reward_updates_per_update: float = 1,
         grad_penalty: bool = False,
         **kw,
     ):
@@ -237,7 +237,7 @@ class DemoDiscriminatorLearner(RewardLearner):
             self.demo_x = torch.cat([reward.state_features(ep) for ep in demos], 0)
             self.demo_a = self.demo_x.new_zeros(self.demo_x.shape[0], 0)
         self.batch_size = int(batch_size)
-        self._set_steps_per_rl_update(updates_per_rl_update)
+        self._set_reward_updates_per_update(reward_updates_per_update)
         disc = TensorDictModule(_ProbabilityOf(reward), in_keys=["observation", "action"], out_keys=["d_logits"])
         self.loss = GAILLoss(disc, use_grad_penalty=bool(grad_penalty))
         self.optim = torch.optim.Adam(reward.classifier.parameters(), lr=float(lr), fused=bool(fused))

@@ -27,7 +27,7 @@ class DrSLearner(RewardLearner):
         capacity, batch_size, scratch_dir: stage-buffer size per stage, discriminator batch per side,
             optional on-disk storage.
         lr, fused: Adam of the discriminators.
-        updates_per_rl_update: discriminator steps per RL update (the authors': 1; may be fractional, e.g. 0.5).
+        reward_updates_per_update: discriminator steps per RL update (the authors': 1; may be fractional, e.g. 0.5).
         early_stop_threshold, window, latch: see :class:`~drs_torchrl.objectives.DiscriminatorLoss`.
         demos: successful trajectories (``(T,)`` TensorDicts of states) for the top buffer (line 3).
         file_successes: False keeps the agent's successful episodes out of the top buffer (they still
@@ -46,7 +46,7 @@ class DrSLearner(RewardLearner):
         scratch_dir=None,
         lr: float = 3e-4,
         fused: bool = False,
-        updates_per_rl_update: float = 1,
+        reward_updates_per_update: float = 1,
         early_stop_threshold: float | None = 0.95,
         window: int = 100,
         latch: bool = True,
@@ -71,7 +71,7 @@ class DrSLearner(RewardLearner):
             latch=bool(latch),
         )
         self.optim = torch.optim.Adam(reward.discriminators.parameters(), lr=float(lr), fused=bool(fused))
-        self._set_steps_per_rl_update(updates_per_rl_update)
+        self._set_reward_updates_per_update(reward_updates_per_update)
         self.num_demos = 0
         self.file_successes = bool(file_successes)
         for ep in demos or ():
