@@ -53,7 +53,7 @@ for f in ("train.csv", "eval.csv"):
     if not (old / f).is_file():
         continue
     a, b = pd.read_csv(old / f), pd.read_csv(new / f)
-    timing = ("_per_s", "frac_time", "wall_s")
+    timing = ("_per_s", "frac_time", "wall_s", "rss_mib")  # machine measurements, not learning
     cols = [c for c in a.columns if c in b.columns and not any(t in c for t in timing)]
     diff = float((a[cols] - b[cols]).abs().max().max()) if len(a) == len(b) else float("nan")
     print(f"{name} {f}: rows {len(a)} / {len(b)}, columns only old {sorted(set(a.columns) - set(b.columns))}, "
