@@ -9,7 +9,7 @@ pids=$(pgrep -f "drs-study results/" | tr '\n' ' ')
 [ -z "$pids" ] && { echo "no study running"; exit 0; }
 echo "stopping studies (pids $pids) with SIGTERM"
 kill -TERM $pids
-deadline=$((SECONDS + ${1:-600}))
+deadline=$((SECONDS + ${1:-600})); left=$pids
 while [ "$SECONDS" -lt "$deadline" ]; do
   left=$(for p in $pids; do kill -0 "$p" 2>/dev/null && echo "$p"; done)
   [ -z "$left" ] && { echo "every study stopped; its runs saved their states"; exit 0; }

@@ -80,7 +80,7 @@ def names(group):
     "app,overrides",
     [("learn", [f"algo={a}"]) for a in names("algo")]
     + [(app, [f"reward={r}"]) for r in names("reward") for app in ("learn", "reuse")]
-    + [("learn", [f"env={e}"]) for e in names("env")]
+    + [("learn", [f"env={e}"]) for e in names("env") if e != "maze"]  # (the maze: ("maze", []) below)
     + [("learn", [f"+ablation={a}"]) for a in names("ablation")]
     + [("learn", ["algo=ppo", "reward=gail"]), ("maze", []), ("maze", ["agent=ppo"]), ("quickstart", [])],
 )

@@ -134,6 +134,9 @@ def test_the_mazes_agents_are_the_algo_nodes_and_dqn_is_refused_on_continuous_ac
         validate(composed("maze", "agent=ppo", "ppo.precision=bf16"))
     with pytest.raises(ConfigError, match=r"^algo=dqn acts on discrete actions: it runs the maze .*algo=sac_cpu"):
         validate_config(composed("learn", "algo=dqn"), "learn")
+    # conf/env/maze.yaml composed into drs-learn's config (a study's check, a multirun): refused, naming drs-maze
+    with pytest.raises(ConfigError, match=r"^env=maze is run by drs-maze .* run drs-maze phase=learn\|reuse"):
+        validate_config(composed("learn", "env=maze", "algo=dqn"), "learn")
 
 
 def test_settings_an_algorithm_does_not_have_are_not_demanded():

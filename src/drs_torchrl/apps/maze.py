@@ -765,7 +765,7 @@ def main(cfg: DictConfig) -> None:
     record = current_record(run_dir) if cfg.phase != "report" else None  # Hydra's (a resume's: beside the run's)
     try:
         overrides = list(HydraConfig.get().overrides.task)
-        if "env" in cfg or "map" not in cfg:  # env=OTHER (a family of drs-learn's) or env=null
+        if "env" in cfg or "map" not in cfg:  # env=OTHER (a family of drs-learn's) or ~env
             raise MazeConfigError(
                 "drs-maze runs the maze family (conf/env/maze.yaml): leave env= out; its env settings are map=, "
                 "num_envs=, max_steps=, coords= (other families: drs-learn env=NAME)"

@@ -42,6 +42,12 @@ def collector_for_device(collector: DictConfig, device: torch.device) -> tuple[D
 
 def validate_config(cfg: DictConfig, phase: str, resume: bool = False) -> None:
     """Reject values that would fail later or silently do nothing (``resume``: ``cfg`` is a run's saved config)."""
+    if "map" in cfg and cfg.env.get("family") is None:  # conf/env/maze.yaml composed into drs-learn's config
+        raise ConfigError(
+            "env=maze is run by drs-maze (conf/maze.yaml): a drs-learn/drs-reuse command line with env=maze hands it "
+            "over by itself, but a composed drs-learn config (a study's check, a multirun) cannot hold it; run "
+            "drs-maze phase=learn|reuse ... instead"
+        )
     if cfg.algo.get("name") == "dqn":  # conf/algo/dqn.yaml: a discrete-action agent
         raise ConfigError(
             "algo=dqn acts on discrete actions: it runs the maze (drs-learn env=maze algo=dqn, or drs-maze); this "
