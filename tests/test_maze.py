@@ -234,6 +234,19 @@ def test_discriminator_on_maze_state_actions_prefers_the_demonstrated_moves():
     assert flat_diag["optimal_action_rate"] == flat_diag["always_up_rate"] == diag["always_up_rate"] > 0.5
 
 
+@pytest.mark.parametrize("name", ["drs", "vice_raq", "oril", "gail"])
+def test_every_maze_reward_learner_takes_a_fractional_step_rate(name):
+    """``dqn.reward_updates_per_update=0.5`` (the schema allows fractions): one learner step every second DQN update,
+    for DrS and for the classifier baselines alike (the baselines' rate was once cut to an int: 0.5 became 0)."""
+    from drs_torchrl.apps.maze import make_reward
+
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base=None):
+        cfg = compose("maze", overrides=[f"reward.name={name}", "dqn.reward_updates_per_update=0.5", "demos=2"])
+    learner, _ = make_reward(cfg, "train", learn=True)
+    assert learner.reward_updates_per_update == 0.5
+    assert [learner._steps_due() for _ in range(4)] == [0, 1, 0, 1]
+
+
 def test_config_errors_name_the_fix():
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base=None):
         with pytest.raises(MazeConfigError, match="reward.checkpoint"):

@@ -343,7 +343,7 @@ def make_classifier_reward(cfg: DictConfig, map_name: str, learn: bool):
     common = dict(
         lr=float(c.lr),
         batch_size=int(c.batch_size),
-        reward_updates_per_update=int(cfg[cfg.agent].reward_updates_per_update),
+        reward_updates_per_update=float(cfg[cfg.agent].reward_updates_per_update),
     )
     s_eps = demo_episodes(map_name, int(cfg.demos), int(cfg.seed), cfg.coords)  # observations of s ...
     n_eps = demo_episodes(map_name, int(cfg.demos), int(cfg.seed), cfg.coords, next_state=True)  # ... and of s'
