@@ -251,7 +251,8 @@ def new_reward_learner(
     )
 
 
-def _common(cfg, device, autocast, step_fn, reward_updates_per_update) -> dict:
+def _common(cfg, *, device, autocast, step_fn, reward_updates_per_update=1.0) -> dict:
+    """A learner's arguments from the run (``new_reward_learner``'s keywords; an unknown one raises) and ``disc``."""
     d = cfg.disc
     return dict(
         lr=float(d.lr),
@@ -263,24 +264,13 @@ def _common(cfg, device, autocast, step_fn, reward_updates_per_update) -> dict:
     )
 
 
-def drs_learner(
-    cfg,
-    family: TaskFamily,
-    env,
-    metadata: dict,
-    *,
-    device,
-    autocast,
-    step_fn,
-    demos=None,
-    reward_updates_per_update=1.0,
-):
+def drs_learner(cfg, family: TaskFamily, env, metadata: dict, *, demos=None, **training):
     """DrS (Algorithm 1): stage buffers and one discriminator per stage, training a fresh :class:`DrSReward`."""
     from drs_torchrl.learners import DrSLearner
 
-    d = cfg.disc
+    d, common = cfg.disc, _common(cfg, **training)
     return DrSLearner(
-        new_drs_reward(cfg, family, env.observation_spec, metadata).to(device),
+        new_drs_reward(cfg, family, env.observation_spec, metadata).to(common["device"]),
         capacity=int(cfg.stage_buffer_size),
         batch_size=int(d.batch_size),
         scratch_dir=cfg.get("stage_buffer_scratch_dir"),
@@ -288,52 +278,30 @@ def drs_learner(
         window=int(d.window),
         latch=bool(d.get("latch", True)),
         demos=demos,
-        **_common(cfg, device, autocast, step_fn, reward_updates_per_update),
+        **common,
     )
 
 
-def _classifier(cfg, family, env, metadata, device, autocast, step_fn, rate) -> tuple[ClassifierReward, dict]:
-    reward = new_classifier_reward(cfg, family, env.observation_spec, env.action_spec, metadata).to(device)
-    common = _common(cfg, device, autocast, step_fn, rate)
+def _classifier(cfg, family, env, metadata, **training) -> tuple[ClassifierReward, dict]:
+    common = _common(cfg, **training)
+    reward = new_classifier_reward(cfg, family, env.observation_spec, env.action_spec, metadata).to(common["device"])
     common.update(batch_size=int(cfg.disc.batch_size))
     return reward, common
 
 
-def vice_raq_learner(
-    cfg,
-    family: TaskFamily,
-    env,
-    metadata: dict,
-    *,
-    device,
-    autocast,
-    step_fn,
-    demos=None,
-    reward_updates_per_update=1.0,
-):
+def vice_raq_learner(cfg, family: TaskFamily, env, metadata: dict, *, demos=None, **training):
     """VICE-RAQ with an oracle (Sec. 5.2): success states vs every other visited state, online."""
     from drs_torchrl.learners import SuccessClassifierLearner
 
-    reward, common = _classifier(cfg, family, env, metadata, device, autocast, step_fn, reward_updates_per_update)
+    reward, common = _classifier(cfg, family, env, metadata, **training)
     return SuccessClassifierLearner(reward, success_key=family.stage_keys[-1], capacity=int(cfg.buffer_size), **common)
 
 
-def oril_learner(
-    cfg,
-    family: TaskFamily,
-    env,
-    metadata: dict,
-    *,
-    device,
-    autocast,
-    step_fn,
-    demos=None,
-    reward_updates_per_update=1.0,
-):
+def oril_learner(cfg, family: TaskFamily, env, metadata: dict, *, demos=None, **training):
     """ORIL (Sec. 5.2): demonstration states vs random-policy states, trained offline before RL."""
     from drs_torchrl.learners import OfflineClassifierLearner
 
-    reward, common = _classifier(cfg, family, env, metadata, device, autocast, step_fn, reward_updates_per_update)
+    reward, common = _classifier(cfg, family, env, metadata, **training)
     return OfflineClassifierLearner(
         reward,
         demos=demos,
@@ -344,20 +312,9 @@ def oril_learner(
     )
 
 
-def gail_learner(
-    cfg,
-    family: TaskFamily,
-    env,
-    metadata: dict,
-    *,
-    device,
-    autocast,
-    step_fn,
-    demos=None,
-    reward_updates_per_update=1.0,
-):
+def gail_learner(cfg, family: TaskFamily, env, metadata: dict, *, demos=None, **training):
     """GAIL (Appendix F.2): demonstrations vs the agent's transitions, TorchRL's ``GAILLoss``."""
     from drs_torchrl.learners import DemoDiscriminatorLearner
 
-    reward, common = _classifier(cfg, family, env, metadata, device, autocast, step_fn, reward_updates_per_update)
+    reward, common = _classifier(cfg, family, env, metadata, **training)
     return DemoDiscriminatorLearner(reward, demos=demos, grad_penalty=bool(cfg.get("grad_penalty", False)), **common)

@@ -307,10 +307,10 @@ def maze_arguments(args: list[str], phase: str) -> list[str] | None:
     when ``args`` do not name the maze.
 
     The maze is a family of the same loop of Algorithm 1 (``tasks/maze.py`` holds its pieces: the batched grid
-    env, the (s, a) reward, the shortest-path demonstrations; ``apps/maze.py`` wires them) with its own config, ``conf/maze.yaml`` (its env settings ``conf/env/maze.yaml``): its env,
-    reward input and agents share no setting with the ManiSkill families' groups. So ``algo=dqn|ppo`` becomes
-    ``agent=``, ``reward=NAME`` becomes ``reward.name=NAME``, and the other overrides (``resume=RUN_DIR`` too) are
-    ``conf/maze.yaml``'s."""
+    env, the (s, a) reward, the shortest-path demonstrations; ``apps/maze.py`` wires them) with its own config,
+    ``conf/maze.yaml`` (its env settings ``conf/env/maze.yaml``): its env, reward input and agents share no setting
+    with the ManiSkill families' groups. So ``algo=dqn|ppo`` becomes ``agent=``, ``reward=NAME`` becomes
+    ``reward.name=NAME``, and the other overrides (``resume=RUN_DIR`` too) are ``conf/maze.yaml``'s."""
     if "env=maze" not in args:
         return None
     out = [f"phase={phase}"]

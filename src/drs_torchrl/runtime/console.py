@@ -114,7 +114,8 @@ def user_error_message(exc: BaseException) -> str | None:
             + renamed_hint(str(exc))
         )
     if isinstance(exc, ValueError) and str(exc).startswith("Config group override must be"):  # Hydra: GROUP=null
-        return f"{one_line(exc)}: a config group (env=, algo=, reward=, ...) takes one of its options' names (--help lists them)"
+        hint = "a config group (env=, algo=, reward=, ...) takes one of its options' names (--help lists them)"
+        return f"{one_line(exc)}: {hint}"
     if isinstance(exc, OSError) and (exc.filename or exc.errno in (errno.ENOSPC, errno.EDQUOT)):
         msg = f"{exc.filename}: {exc.strerror or exc}" if exc.filename else str(exc.strerror or exc)
         if exc.errno in (errno.ENOSPC, errno.EDQUOT) and exc.filename:

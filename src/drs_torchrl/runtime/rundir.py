@@ -227,8 +227,8 @@ def fsync_path(path: str | os.PathLike) -> None:
 
 def maze_run_message(run_dir: str | os.PathLike) -> str | None:
     """What to say when ``run_dir`` is a ``drs-maze`` run given to a command that reads drs-learn/drs-reuse runs
-    (its saved config has ``map`` and ``dqn`` at the root, no ``env`` node); ``None`` for any other directory. (Read from the
-    run's own ``config.yaml``: a run directory says what wrote it.)"""
+    (its saved config has ``map`` and ``dqn`` at the root, no ``env`` node); ``None`` for any other directory. (Read
+    from the run's own ``config.yaml``: a run directory says what wrote it.)"""
     import yaml
 
     try:
@@ -238,9 +238,9 @@ def maze_run_message(run_dir: str | os.PathLike) -> str | None:
     if not (isinstance(cfg, dict) and "map" in cfg and "dqn" in cfg and "env" not in cfg):
         return None
     return (
-        f"{run_dir} is a drs-maze run (the maze family's app, conf/maze.yaml), not a drs-learn/drs-reuse run: its evaluations are "
-        f"the eval_success column of its train.csv, and drs-maze phase=report report.root={Path(run_dir).parent} "
-        "report.out=DIR draws and tables maze runs"
+        f"{run_dir} is a drs-maze run (the maze family's app, conf/maze.yaml), not a drs-learn/drs-reuse run: its "
+        "evaluations are the eval_success column of its train.csv, and drs-maze phase=report "
+        f"report.root={Path(run_dir).parent} report.out=DIR draws and tables maze runs"
     )
 
 
