@@ -38,7 +38,7 @@ def test_auto_files_state_only_demonstrations_in_the_stage_buffers_and_says_why_
 
 
 def test_a_classifier_reward_keeps_its_demonstrations_and_shares_the_batch():
-    use = plan_demo_use(episodes(), reward_name="gail", **KW)
+    use = plan_demo_use(episodes(), files_in_stage_buffers=False, **KW)
     assert (use.stage_buffers, use.sac_share) == (True, AUTO_SAC_SHARE)
 
 

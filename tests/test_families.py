@@ -218,7 +218,8 @@ def test_turn_valve_episodes_end_at_their_own_levels_time_limit():
 
 @pytest.mark.sim
 def test_cross_robot_reward_reads_robot_agnostic_entries_and_fits_every_robot():
-    from drs_torchrl.rewards import new_drs_reward
+    from hydra.utils import instantiate
+
     from drs_torchrl.transforms import DrSReward
 
     fam = get_family("cross_robot")
@@ -228,9 +229,8 @@ def test_cross_robot_reward_reads_robot_agnostic_entries_and_fits_every_robot():
         panda, so100 = envs
         assert panda.observation_spec["observation"].shape != so100.observation_spec["observation"].shape
         assert panda.action_spec.shape != so100.action_spec.shape
-        reward_cfg = OmegaConf.load(CONF / "reward" / "drs.yaml")
-        reward = new_drs_reward(reward_cfg, fam, panda.observation_spec, {"family": fam.name})
-        assert list(reward.reward_in_keys) == list(fam.reward_in_keys)  # the trainer's path passes them through
+        reward_cfg = OmegaConf.load(CONF / "reward" / "drs.yaml")  # its model builder, as a drs-learn run calls it
+        reward = instantiate(reward_cfg.model)(panda, fam.num_stages, list(fam.reward_in_keys), metadata={})
         reward.check_compatible(so100.observation_spec, num_stages=fam.num_stages, family=fam.name)
         td = so100.rollout(3)
         assert td["next", "task_observation"].shape == (3, 19)

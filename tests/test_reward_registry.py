@@ -84,7 +84,7 @@ def test_a_new_reward_is_one_yaml_file(tmp_path, monkeypatch):
         "slot: {_target_: drs_torchrl.rewards.semi_sparse_reward, _partial_: true}\n"
     )
     (conf / "reward" / "success_classifier.yaml").write_text(
-        documented_reward_file().replace("name: my_classifier", "name: success_classifier")
+        documented_reward_file().replace("my_classifier", "success_classifier")
     )
     monkeypatch.setenv("DRS_CONF_DIR", str(conf))
     assert {"stage_index", "success_classifier"} <= set(available_rewards())
@@ -139,3 +139,40 @@ def test_a_reused_drs_reward_is_used_as_it_was_learned(tmp_path):
     )  # the config is not written
     assert "reward.formula=rescaled is not used: the reused reward was learned with formula=paper" in notes
     assert not any("in_keys" in n for n in notes)  # null: the family's inputs, nothing was said otherwise
+
+
+def test_a_learned_reward_is_built_from_its_entry_with_the_settings_linked_and_a_saved_one_resumes(tmp_path):
+    """model + learner in the YAML build the learner; their settings link to the reward's keys (an override of
+    reward.disc.lr reaches the optimiser); config.yaml keeps them as links; a reward node saved by 0.1.x (learner: a
+    drs_torchrl.rewards.*_learner function, no model) gets the registry's model and learner and builds the same."""
+    from torchrl.data import Composite, Unbounded
+
+    from drs_torchrl.apps.build import save_config
+    from drs_torchrl.learners import DrSLearner
+    from drs_torchrl.tasks import get_family
+
+    class _Env:  # what the builders read of an env: its specs
+        observation_spec = Composite(observation=Unbounded(shape=(5,)), stage_indicators=Unbounded(shape=(2,)))
+
+    fam = get_family("turn_valve")  # (its stage count and reward inputs; no env is made)
+    with initialize_config_dir(config_dir=conf_dir(), version_base=None):
+        cfg = compose("learn", overrides=["env=turn_valve", "reward=drs", "reward.disc.lr=0.001", "reward.hidden=[8]"])
+
+    def build(node):
+        return new_reward_learner(node, fam, _Env(), {"family": "synthetic"}, device="cpu", autocast=None,
+                                  step_fn=plain_step)  # fmt: skip
+
+    learner = build(cfg.reward)
+    assert isinstance(learner, DrSLearner) and learner.optim.param_groups[0]["lr"] == 0.001
+    assert learner.reward.discriminators.hidden == [8] and learner.reward.reward_in_keys == list(fam.reward_in_keys)
+    save_config(cfg, tmp_path / "config.yaml")
+    saved = OmegaConf.load(tmp_path / "config.yaml")
+    assert OmegaConf.to_container(saved.reward.learner)["lr"] == "${..disc.lr}" and saved.reward.learner.lr == 0.001
+    assert OmegaConf.to_container(saved.reward.model)["hidden"] == "${..hidden}"
+    old = OmegaConf.create(OmegaConf.to_container(saved.reward, resolve=True))
+    old.learner = {"_target_": "drs_torchrl.rewards.drs_learner", "_partial_": True}
+    del old["model"]
+    with_builders(old)
+    assert old.learner._target_ == "drs_torchrl.learners.DrSLearner" and old.model is not None
+    again = build(old)
+    assert again.optim.param_groups[0]["lr"] == 0.001 and again.reward.discriminators.hidden == [8]

@@ -6,10 +6,11 @@ per step) and/or (d) a transform on replay-buffer samples (rewards that change w
 they are recomputed from the current modules when SAC samples; Sec. 4, Algorithm 1 line 18).
 
 **The registry is ``conf/reward/``** (read by :mod:`drs_torchrl.apps.reward_registry`, not here): a reward exists
-when ``conf/reward/<name>.yaml`` does, and that file names what builds it by ``_target_``: ``slot`` (one of the functions below: what the run's reward slot holds in either
-phase) and, for a learned reward, ``learner`` (its phase-1 :mod:`drs_torchrl.learners` learner, built by a
-``*_learner`` function below) and ``reuses`` (the method of the ``reward.pt`` its phase 2 loads, when it is not its
-own name). No module lists reward names. Adding a learned reward: a learner class, its builder and one YAML.
+when ``conf/reward/<name>.yaml`` does, and that file names what builds it by ``_target_``: ``slot`` (one of the
+functions below: what the run's reward slot holds in either phase) and, for a learned reward, ``model`` (its
+networks, e.g. ``DrSReward.from_env``), ``learner`` (its phase-1 :mod:`drs_torchrl.learners` class, with its
+settings) and ``reuses`` (the method of the ``reward.pt`` its phase 2 loads, when it is not its own name). No module
+lists reward names. Adding a learned reward: a learner class and one YAML (docs/rewards.md).
 
 Learned rewards: ``drs``, and the baselines ``vice_raq``, ``oril``, ``gail`` and ``gail_stages`` (GAIL's
 reward plus the semi-sparse one in reuse, Appendix F.2). Static baselines of Sec. 5.2: ``sparse`` (success),
@@ -22,7 +23,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from hydra.utils import instantiate
+from hydra.utils import get_class, instantiate
 from omegaconf import DictConfig, OmegaConf
 from torchrl.envs.transforms import Transform
 
@@ -33,7 +34,7 @@ from drs_torchrl.transforms.reward import DrSReward, RewardCheckpointError, load
 
 def reward_entry(cfg) -> DictConfig:
     """What builds the reward ``cfg`` (a ``reward`` config node as composed from ``conf/reward/<name>.yaml``): the
-    node itself, which names its ``slot`` (and ``learner``, ``reuses``)."""
+    node itself, which names its ``slot`` (and ``model``, ``learner``, ``reuses``)."""
     if cfg.get("slot") is None:
         raise ValueError(
             f"the reward config {cfg.get('name')!r} names no builder (slot): compose it from conf/reward/ "
@@ -183,45 +184,10 @@ def dense_offset(setup: RewardSetup, family: TaskFamily) -> float:
     return -1.0 if setup.name == "dense" and family.backend == "maniskill" else 0.0
 
 
-def new_drs_reward(cfg, family: TaskFamily, observation_spec, metadata: dict) -> DrSReward:
-    """A fresh DrS reward for phase 1, its input sizes read from the env's spec."""
-    return DrSReward.from_spec(
-        observation_spec,
-        family.num_stages,
-        list(cfg.get("in_keys") or family.reward_in_keys),
-        formula=cfg.formula,
-        alpha=float(cfg.alpha),
-        offset=float(cfg.get("offset", -2.0)),
-        hidden=list(cfg.hidden),
-        activation=cfg.activation,
-        metadata=metadata,
-    )
-
-
-def new_classifier_reward(cfg, family: TaskFamily, observation_spec, action_spec, metadata: dict) -> ClassifierReward:
-    """A fresh classifier reward for a baseline's phase 1 (``vice_raq``, ``oril``, ``gail``)."""
-    in_keys = list(cfg.get("in_keys") or family.reward_in_keys)
-    shapes = {}
-    for k in in_keys:
-        if k not in observation_spec.keys(True, True):
-            raise KeyError(
-                f"reward input {k!r} is not in the observation spec; it has {list(observation_spec.keys(True, True))}"
-            )
-        shapes[k] = int(observation_spec[k].shape[-1])
-    use_action = bool(cfg.get("use_action", False))
-    return ClassifierReward(
-        in_keys,
-        shapes,
-        family.num_stages,
-        use_action=use_action,
-        action_dim=int(action_spec.shape[-1]) if use_action else None,
-        output=str(cfg.output),
-        offset=float(cfg.get("offset") or 0.0),
-        hidden=list(cfg.hidden),
-        activation=str(cfg.activation),
-        method=reused_method(cfg),
-        metadata=metadata,
-    )
+def learner_class(cfg) -> type | None:
+    """The :mod:`drs_torchrl.learners` class of a learned reward's ``learner`` node (None for a static reward)."""
+    node = reward_entry(cfg).get("learner")
+    return None if node is None else get_class(node._target_)
 
 
 def new_reward_learner(
@@ -236,85 +202,20 @@ def new_reward_learner(
     demos=None,
     reward_updates_per_update: float = 1.0,
 ):
-    """The phase-1 learner of ``reward=<name>`` (``cfg`` is the ``reward`` config group): its entry's ``learner``.
-    ``reward_updates_per_update``: its steps per RL update, the algorithm's ``algo.reward_updates_per_update``."""
-    return instantiate(reward_entry(cfg).learner)(
-        cfg,
-        family,
-        env,
-        metadata,
-        device=device,
-        autocast=autocast,
-        step_fn=step_fn,
+    """The phase-1 learner of ``reward=<name>`` (``cfg`` is the ``reward`` config group), built from its entry alone:
+    ``model`` (the reward's networks, sized from ``env``: ``DrSReward.from_env``, ``ClassifierReward.from_env``) and
+    ``learner`` (the :mod:`drs_torchrl.learners` class that trains it), each a partial whose settings link to the
+    node's (``${..disc.lr}``, ...). The run adds what it owns: ``device``, ``autocast``, ``step_fn(loss,
+    optimizers)``, the ``demos`` (every learner takes them) and ``reward_updates_per_update``, the algorithm's
+    ``algo.reward_updates_per_update``."""
+    entry = reward_entry(cfg)
+    in_keys = list(cfg.get("in_keys") or family.reward_in_keys)
+    model = instantiate(entry.model)(env, family.num_stages, in_keys, metadata=metadata).to(device)
+    return instantiate(entry.learner)(
+        model,
         demos=demos,
-        reward_updates_per_update=reward_updates_per_update,
-    )
-
-
-def _common(cfg, *, device, autocast, step_fn, reward_updates_per_update=1.0) -> dict:
-    """A learner's arguments from the run (``new_reward_learner``'s keywords; an unknown one raises) and ``disc``."""
-    d = cfg.disc
-    return dict(
-        lr=float(d.lr),
-        fused=bool(d.get("fused", False)),
         device=device,
         autocast=autocast,
         step_fn=step_fn,
         reward_updates_per_update=float(reward_updates_per_update),
     )
-
-
-def drs_learner(cfg, family: TaskFamily, env, metadata: dict, *, demos=None, **training):
-    """DrS (Algorithm 1): stage buffers and one discriminator per stage, training a fresh :class:`DrSReward`."""
-    from drs_torchrl.learners import DrSLearner
-
-    d, common = cfg.disc, _common(cfg, **training)
-    return DrSLearner(
-        new_drs_reward(cfg, family, env.observation_spec, metadata).to(common["device"]),
-        capacity=int(cfg.stage_buffer_size),
-        batch_size=int(d.batch_size),
-        scratch_dir=cfg.get("stage_buffer_scratch_dir"),
-        early_stop_threshold=d.early_stop_threshold,
-        window=int(d.window),
-        latch=bool(d.get("latch", True)),
-        demos=demos,
-        **common,
-    )
-
-
-def _classifier(cfg, family, env, metadata, **training) -> tuple[ClassifierReward, dict]:
-    common = _common(cfg, **training)
-    reward = new_classifier_reward(cfg, family, env.observation_spec, env.action_spec, metadata).to(common["device"])
-    common.update(batch_size=int(cfg.disc.batch_size))
-    return reward, common
-
-
-def vice_raq_learner(cfg, family: TaskFamily, env, metadata: dict, *, demos=None, **training):
-    """VICE-RAQ with an oracle (Sec. 5.2): success states vs every other visited state, online."""
-    from drs_torchrl.learners import SuccessClassifierLearner
-
-    reward, common = _classifier(cfg, family, env, metadata, **training)
-    return SuccessClassifierLearner(reward, success_key=family.stage_keys[-1], capacity=int(cfg.buffer_size), **common)
-
-
-def oril_learner(cfg, family: TaskFamily, env, metadata: dict, *, demos=None, **training):
-    """ORIL (Sec. 5.2): demonstration states vs random-policy states, trained offline before RL."""
-    from drs_torchrl.learners import OfflineClassifierLearner
-
-    reward, common = _classifier(cfg, family, env, metadata, **training)
-    return OfflineClassifierLearner(
-        reward,
-        demos=demos,
-        capacity=int(cfg.buffer_size),
-        random_episodes=int(cfg.random_episodes),
-        offline_updates=int(cfg.offline_updates),
-        **common,
-    )
-
-
-def gail_learner(cfg, family: TaskFamily, env, metadata: dict, *, demos=None, **training):
-    """GAIL (Appendix F.2): demonstrations vs the agent's transitions, TorchRL's ``GAILLoss``."""
-    from drs_torchrl.learners import DemoDiscriminatorLearner
-
-    reward, common = _classifier(cfg, family, env, metadata, **training)
-    return DemoDiscriminatorLearner(reward, demos=demos, grad_penalty=bool(cfg.get("grad_penalty", False)), **common)

@@ -36,7 +36,7 @@ from drs_torchrl.loop import EpisodeWindow, Progress, Schedule, aggregate_episod
 from drs_torchrl.models import POLICY_FORMAT, read_policy_checkpoint
 from drs_torchrl.precision import describe_precision, grad_scaler, resolve_precision
 from drs_torchrl.runtime.provenance import code_version
-from drs_torchrl.rewards import is_learned, reused_reward_settings, reward_setup
+from drs_torchrl.rewards import is_learned, learner_class, reused_reward_settings, reward_setup
 from drs_torchrl.runtime.signals import worker_env
 from drs_torchrl.tasks import TASK_OBSERVATION_KEY, family_from_config
 from drs_torchrl.apps.factories import (
@@ -67,8 +67,8 @@ def _resolve_device(name: str) -> torch.device:
 def save_config(cfg: DictConfig, path: Path, resolved: dict[str, Any] | None = None) -> None:
     """The run's config with the values it ``resolved`` (dotted keys: an ``auto`` setting's choice, a reused reward's
     settings), so that a resume on another machine runs as this run did; interpolations resolved, except
-    ``algo.updater``: that node only wires the ``algo`` settings into the updater's builder (``${algo.gamma}``, ...),
-    so it is kept as links and a config edited later (or a resume that changes a setting) builds the updater from the
+    ``algo.updater`` and a learned reward's ``reward.model`` / ``reward.learner``: those nodes only wire the settings
+    into their builders (``${..gamma}``, ``${..disc.lr}``, ...), so they are kept as links and a config edited later (or a resume that changes a setting) builds the updater from the
     settings as they are, not from a stale copy."""
     data = OmegaConf.create(OmegaConf.to_container(cfg, resolve=True))
     with open_dict(data):
@@ -76,6 +76,9 @@ def save_config(cfg: DictConfig, path: Path, resolved: dict[str, Any] | None = N
             OmegaConf.update(data, key, value, merge=False, force_add=True)
     data = OmegaConf.to_container(data)
     data["algo"]["updater"] = OmegaConf.to_container(cfg.algo.updater, resolve=False)
+    for key in ("model", "learner"):  # a learned reward's builders: links to the reward's settings, as the updater's
+        if cfg.reward.get(key) is not None:
+            data["reward"][key] = OmegaConf.to_container(cfg.reward[key], resolve=False)
     OmegaConf.save(OmegaConf.create(data), path)
 
 
@@ -129,14 +132,16 @@ class Run:
             demos_cfg = cfg.get("demos") or {}
             # a resumed DrS run has its demonstrations in its stage-buffer snapshot (the file is read again only for
             # demos.sac_share); the classifiers keep theirs apart from their data and read the file again
-            reread = not resume or reward.name != "drs" or requested_sac_share(demos_cfg.get("sac_share")) != 0
+            learner_cls = learner_class(cfg.reward) if learns else None
+            in_state = resume and learner_cls is not None and learner_cls.stage_buffers_hold_demos
+            reread = not in_state or requested_sac_share(demos_cfg.get("sac_share")) != 0
             demos = self._demonstrations(demos_cfg) if learns and reread else None
             use = plan_demo_use(
                 demos,
                 stage_buffers=demos_cfg.get("stage_buffers", True),
                 sac_share=demos_cfg.get("sac_share"),
                 path=demos_cfg.get("path"),
-                reward_name=reward.name,
+                files_in_stage_buffers=learner_cls is not None and learner_cls.stage_buffers_hold_demos,
                 learned=learns,
                 action_dim=int(self.env.action_spec.shape[-1]),
                 control_mode=self._control_mode(cfg),
@@ -158,7 +163,7 @@ class Run:
                     device=device,
                     precision=self.precision,
                     step_fn=functools.partial(backward_and_step, scaler),
-                    demos=demos if use.stage_buffers and not (resume and reward.name == "drs") else None,
+                    demos=demos if use.stage_buffers and not in_state else None,
                 )
                 reward.learned = self.learner.reward
             self.learned = reward.learned

@@ -84,7 +84,7 @@ def plan_demo_use(
     stage_buffers="auto",
     sac_share="auto",
     path=None,
-    reward_name: str = "drs",
+    files_in_stage_buffers: bool = True,
     learned: bool = True,
     action_dim: int = 0,
     control_mode: str | None = None,
@@ -100,7 +100,7 @@ def plan_demo_use(
     if stage_buffers != "auto":
         use.stage_buffers = bool(stage_buffers)
     elif demos:  # (with nothing to file, auto stays auto: a fresh run from this config is refused nothing)
-        use.stage_buffers = not (reward_name == "drs" and asked != 0 and carries_actions(demos, action_dim))
+        use.stage_buffers = not (files_in_stage_buffers and asked != 0 and carries_actions(demos, action_dim))
         use.resolved["demos.stage_buffers"] = use.stage_buffers
         use.notes.append(
             f"demos.stage_buffers=auto -> {str(use.stage_buffers).lower()}: "

@@ -43,6 +43,9 @@ class RewardLearner:
 
     name = "learned"
     reward: Transform
+    # True where the training state holds the demonstrations (DrS files them into its stage buffers, which are saved):
+    # a resumed run then does not read them again
+    stage_buffers_hold_demos = False
 
     def __init__(
         self,

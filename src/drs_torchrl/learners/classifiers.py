@@ -110,10 +110,13 @@ class SuccessClassifierLearner(_TwoSetClassifier):
         *,
         success_key: str = "success",
         success_states: TensorDictBase | None = None,
+        demos: list[TensorDictBase] | None = None,
         **kw,
     ):
-        """``success_states``: optional success states to start the positives with (e.g. the final
-        states of demonstrations, given to every learned reward alike)."""
+        """``success_states``: optional success states to start the positives with (the maze gives its
+        demonstrations' goals). ``demos`` is not read: the run gives every learned reward its demonstrations, and
+        VICE-RAQ's positives are the success states the agent visits (Sec. 5.2); a run's demonstrations still feed
+        SAC's batch (``demos.sac_share``)."""
         super().__init__(reward, **kw)
         self.success_key = success_key
         if success_states is not None and success_states.numel():

@@ -36,6 +36,7 @@ class DrSLearner(RewardLearner):
     """
 
     name = "drs"
+    stage_buffers_hold_demos = True
 
     def __init__(
         self,

@@ -33,6 +33,7 @@ from torchrl.envs.transforms import Transform
 from drs_torchrl.transforms.reward import (
     _ACTIVATIONS,
     LearnedRewardChecks,
+    input_sizes,
     RewardCheckpointError,
     bounded_reward_spec,
     check_stages,
@@ -146,6 +147,23 @@ class ClassifierReward(LearnedRewardChecks, Transform):
         self.method = method
         self.metadata = dict(metadata or {})
         self.classifier = Classifier(sum(self.in_shapes.values()) + (self.action_dim or 0), hidden, activation)
+
+    @classmethod
+    def from_env(
+        cls, env, num_stages: int, in_keys: Sequence[str], *, use_action: bool = False, **kwargs
+    ) -> "ClassifierReward":
+        """A fresh classifier for a baseline's phase 1, sized from ``env``'s specs (the action's with
+        ``use_action``): the ``model`` builder of ``conf/reward/{vice_raq,oril,gail}.yaml``."""
+        in_keys = list(in_keys)
+        action_dim = int(env.action_spec.shape[-1]) if use_action else None
+        return cls(
+            in_keys,
+            input_sizes(env.observation_spec, in_keys),
+            num_stages,
+            use_action=use_action,
+            action_dim=action_dim,
+            **kwargs,
+        )
 
     # ------------------------------------------------------------ reward math
     def state_features(self, state: TensorDictBase) -> torch.Tensor:

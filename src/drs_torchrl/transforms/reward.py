@@ -86,6 +86,15 @@ class StageDiscriminators(nn.Module):
         return self.nets[k](x).squeeze(-1)
 
 
+def input_sizes(observation_spec, in_keys: Sequence[str]) -> dict[str, int]:
+    """The trailing size of each reward input in an env's observation spec (a KeyError naming what it has)."""
+    have = list(observation_spec.keys(True, True))
+    missing = [k for k in in_keys if k not in have]
+    if missing:
+        raise KeyError(f"reward input {missing[0]!r} is not in the observation spec; it has {have}")
+    return {k: int(observation_spec[k].shape[-1]) for k in in_keys}
+
+
 class LearnedRewardChecks:
     """``check_compatible`` of a learned reward transform (DrS, the classifier baselines): it reads ``metadata``,
     ``in_shapes``, ``num_stages``, ``stage_key`` and, if it reads actions, ``action_dim``."""
@@ -243,14 +252,13 @@ class DrSReward(LearnedRewardChecks, Transform):
     @classmethod
     def from_spec(cls, observation_spec, num_stages: int, in_keys: Sequence[str], **kwargs) -> "DrSReward":
         """Build with input sizes read from an env's observation spec (e.g. ``env.observation_spec``)."""
-        shapes = {}
-        for k in in_keys:
-            if k not in observation_spec.keys(True, True):
-                raise KeyError(
-                    f"reward input {k!r} is not in the observation spec; it has {list(observation_spec.keys(True, True))}"
-                )
-            shapes[k] = int(observation_spec[k].shape[-1])
-        return cls(num_stages, in_keys, shapes, **kwargs)
+        return cls(num_stages, in_keys, input_sizes(observation_spec, in_keys), **kwargs)
+
+    @classmethod
+    def from_env(cls, env, num_stages: int, in_keys: Sequence[str], **kwargs) -> "DrSReward":
+        """A fresh reward for phase 1, sized from ``env``'s specs: the ``model`` builder of ``conf/reward/drs.yaml``
+        (every learned reward's ``model`` takes ``(env, num_stages, in_keys, **settings)``)."""
+        return cls.from_spec(env.observation_spec, num_stages, in_keys, **kwargs)
 
     def description(self) -> dict[str, Any]:
         d = self.discriminators
