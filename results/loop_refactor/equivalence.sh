@@ -15,6 +15,7 @@ COMMON+=" logger.progress_bar=false logger.tensorboard=false torch_threads=1 see
 COMMON+=" algo.collector._target_=torchrl.collectors.Collector"
 declare -A RUNS=(
   [sac_learn_turn_valve]="drs-learn env=turn_valve total_frames=3000 algo.learning_starts=500 stop_at_success=null $COMMON"
+  [sac_learn_turn_valve_vice_raq]="drs-learn env=turn_valve reward=vice_raq total_frames=2000 algo.learning_starts=500 stop_at_success=null $COMMON"
   [sac_reuse_pick_cube_semi_sparse]="drs-reuse env=pick_cube reward=semi_sparse total_frames=2000 algo.learning_starts=500 $COMMON"
   [dqn_maze_learn]="drs-maze phase=learn num_envs=8 max_steps=40 total_frames=4096 dqn.frames_per_batch=128 dqn.learning_starts=256 dqn.batch_size=32 eval.interval=1024 eval.episodes=8 verbose=false tensorboard=false demos=10 seed=3"
 )
