@@ -176,3 +176,24 @@ def test_a_learned_reward_is_built_from_its_entry_with_the_settings_linked_and_a
     assert old.learner._target_ == "drs_torchrl.learners.DrSLearner" and old.model is not None
     again = build(old)
     assert again.optim.param_groups[0]["lr"] == 0.001 and again.reward.discriminators.hidden == [8]
+
+
+def test_what_the_run_asks_of_a_reward_entry_and_the_edges_of_the_saved_form():
+    """Whether demonstrations live in the learner's saved stage buffers is the learner's to say (DrS), not a name's; a
+    classifier's offset null is 0, as before the registry named its model; a stale saved reward of the user's own
+    (a name conf/reward/ does not hold) is left as it is, so drs-eval still reads its run."""
+    from torchrl.data import Bounded, Composite, Unbounded
+
+    from drs_torchrl.rewards import stage_buffers_hold_demos
+    from drs_torchrl.transforms import ClassifierReward
+
+    assert stage_buffers_hold_demos(registry_entry("drs"))
+    assert not any(stage_buffers_hold_demos(registry_entry(n)) for n in ("gail", "vice_raq", "oril", "sparse"))
+
+    class _Env:
+        observation_spec = Composite(observation=Unbounded(shape=(4,)))
+        action_spec = Bounded(-1, 1, shape=(2,))
+
+    assert ClassifierReward.from_env(_Env(), 2, ["observation"], offset=None).offset == 0.0
+    mine = OmegaConf.create({"name": "my_own", "slot": {"_target_": "x.y"}, "learner": {"_target_": "x.z"}})
+    assert with_builders(mine) is mine and mine.get("model") is None

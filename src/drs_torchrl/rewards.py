@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from hydra.utils import get_class, instantiate
+from hydra.utils import get_object, instantiate
 from omegaconf import DictConfig, OmegaConf
 from torchrl.envs.transforms import Transform
 
@@ -184,10 +184,11 @@ def dense_offset(setup: RewardSetup, family: TaskFamily) -> float:
     return -1.0 if setup.name == "dense" and family.backend == "maniskill" else 0.0
 
 
-def learner_class(cfg) -> type | None:
-    """The :mod:`drs_torchrl.learners` class of a learned reward's ``learner`` node (None for a static reward)."""
+def stage_buffers_hold_demos(cfg) -> bool:
+    """Whether a reward's learner files the demonstrations into stage buffers that its training state saves
+    (``RewardLearner.stage_buffers_hold_demos``: DrS); False for a static reward or a learner that does not say."""
     node = reward_entry(cfg).get("learner")
-    return None if node is None else get_class(node._target_)
+    return node is not None and bool(getattr(get_object(node._target_), "stage_buffers_hold_demos", False))
 
 
 def new_reward_learner(

@@ -36,7 +36,7 @@ from drs_torchrl.loop import EpisodeWindow, Progress, Schedule, aggregate_episod
 from drs_torchrl.models import POLICY_FORMAT, read_policy_checkpoint
 from drs_torchrl.precision import describe_precision, grad_scaler, resolve_precision
 from drs_torchrl.runtime.provenance import code_version
-from drs_torchrl.rewards import is_learned, learner_class, reused_reward_settings, reward_setup
+from drs_torchrl.rewards import is_learned, reused_reward_settings, reward_setup, stage_buffers_hold_demos
 from drs_torchrl.runtime.signals import worker_env
 from drs_torchrl.tasks import TASK_OBSERVATION_KEY, family_from_config
 from drs_torchrl.apps.factories import (
@@ -132,8 +132,8 @@ class Run:
             demos_cfg = cfg.get("demos") or {}
             # a resumed DrS run has its demonstrations in its stage-buffer snapshot (the file is read again only for
             # demos.sac_share); the classifiers keep theirs apart from their data and read the file again
-            learner_cls = learner_class(cfg.reward) if learns else None
-            in_state = resume and learner_cls is not None and learner_cls.stage_buffers_hold_demos
+            in_stage_buffers = learns and stage_buffers_hold_demos(cfg.reward)
+            in_state = resume and in_stage_buffers
             reread = not in_state or requested_sac_share(demos_cfg.get("sac_share")) != 0
             demos = self._demonstrations(demos_cfg) if learns and reread else None
             use = plan_demo_use(
@@ -141,7 +141,7 @@ class Run:
                 stage_buffers=demos_cfg.get("stage_buffers", True),
                 sac_share=demos_cfg.get("sac_share"),
                 path=demos_cfg.get("path"),
-                files_in_stage_buffers=learner_cls is not None and learner_cls.stage_buffers_hold_demos,
+                files_in_stage_buffers=in_stage_buffers,
                 learned=learns,
                 action_dim=int(self.env.action_spec.shape[-1]),
                 control_mode=self._control_mode(cfg),

@@ -40,8 +40,8 @@ def with_builders(reward: DictConfig) -> DictConfig:
     if reward.get("name") is None:  # (nothing to look up without a name)
         return reward
     stale = reward.get("learner") is not None and reward.get("model") is None
-    if reward.get("slot") is not None and not stale:
-        return reward
+    if reward.get("slot") is not None and (not stale or str(reward.name) not in available_rewards()):
+        return reward  # (a stale reward of the user's own: its builders are theirs)
     entry = registry_entry(str(reward.name))
     with open_dict(reward):
         for key in BUILDER_KEYS:

@@ -13,6 +13,7 @@ from drs_torchrl.apps.overrides import check_constructor_arguments
 from drs_torchrl.apps.schema import RunSchema, check
 from drs_torchrl.data.demo_mix import requested_sac_share
 from drs_torchrl.runtime.errors import ConfigError
+from drs_torchrl.rewards import stage_buffers_hold_demos
 from drs_torchrl.updaters.sac import compile_scope
 from drs_torchrl.transforms.reward import _ACTIVATIONS, FORMULAS
 
@@ -88,7 +89,7 @@ def validate_config(cfg: DictConfig, phase: str, resume: bool = False) -> None:
     stage_buffers = (cfg.get("demos") or {}).get("stage_buffers", True)
     if stage_buffers not in (True, False, "auto"):
         raise ConfigError(f"demos.stage_buffers must be true, false or auto, got {stage_buffers!r}")
-    if stage_buffers is False and (phase != "learn" or cfg.reward.name != "drs"):
+    if stage_buffers is False and (phase != "learn" or not stage_buffers_hold_demos(cfg.reward)):
         raise ConfigError(
             "demos.stage_buffers=false is for drs-learn reward=drs (the demonstrations in the SAC batch "
             f"only); this run is drs-{phase} reward={cfg.reward.name}"

@@ -150,11 +150,12 @@ class ClassifierReward(LearnedRewardChecks, Transform):
 
     @classmethod
     def from_env(
-        cls, env, num_stages: int, in_keys: Sequence[str], *, use_action: bool = False, **kwargs
+        cls, env, num_stages: int, in_keys: Sequence[str], *, use_action: bool = False, offset=0.0, **kwargs
     ) -> "ClassifierReward":
         """A fresh classifier for a baseline's phase 1, sized from ``env``'s specs (the action's with
-        ``use_action``): the ``model`` builder of ``conf/reward/{vice_raq,oril,gail}.yaml``."""
+        ``use_action``): the ``model`` builder of ``conf/reward/{vice_raq,oril,gail}.yaml``; ``offset`` null is 0."""
         in_keys = list(in_keys)
+        kwargs["offset"] = float(offset or 0.0)
         action_dim = int(env.action_spec.shape[-1]) if use_action else None
         return cls(
             in_keys,
